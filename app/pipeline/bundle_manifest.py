@@ -1,0 +1,81 @@
+"""``manifest.json`` of a journey bundle (contract section 1). Unknown keys are ignored; values are
+checked strictly (a number must be a JSON number, not a string), so a mistake is reported rather
+than guessed around."""
+
+from __future__ import annotations
+
+import json
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from app.pipeline.csv_table import decode_text
+from app.pipeline.gps import parse_iso_time
+from app.pipeline.types import BundleError, CameraModel
+
+FORMAT = "signmap-journey/1"
+
+
+class CameraPrior(BaseModel):
+    model_config = ConfigDict(extra="ignore", strict=True, allow_inf_nan=False)
+
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    def camera(self, width: int, height: int) -> CameraModel:
+        return CameraModel(width=width, height=height, fx=self.fx, fy=self.fy, cx=self.cx,
+                           cy=self.cy, k1=self.k1, k2=self.k2)
+
+
+class Manifest(BaseModel):
+    model_config = ConfigDict(extra="ignore", strict=True)
+
+    format: str
+    camera_id: str
+    vehicle_id: str | None = None
+    captured_at: str | None = None
+    camera_prior: CameraPrior | None = None
+
+    @field_validator("camera_id")
+    @classmethod
+    def _non_empty(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("must be a non-empty string")
+        return value
+
+    @field_validator("captured_at")
+    @classmethod
+    def _iso_time(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                parse_iso_time(value, "captured_at")
+            except BundleError as exc:
+                raise ValueError(exc.reason) from None
+        return value
+
+
+def parse_manifest(data: bytes) -> Manifest:
+    """``manifest.json`` bytes -> Manifest, or a BundleError saying what to fix."""
+    text = decode_text(data, "manifest.json")
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise BundleError(f"manifest.json is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise BundleError("manifest.json is not valid JSON: nested too deeply") from None
+    if not isinstance(obj, dict):
+        raise BundleError(f"manifest.json must be a JSON object, got {type(obj).__name__}")
+    if "format" not in obj:
+        raise BundleError(f'manifest.json has no "format"; expected "{FORMAT}"')
+    if obj["format"] != FORMAT:
+        raise BundleError(f"manifest.json format is {json.dumps(obj['format'])[:80]}, expected "
+                          f'"{FORMAT}"')
+    try:
+        return Manifest.model_validate(obj)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in err['loc'])}: {err['msg']}" for err in exc.errors()[:5])
+        raise BundleError(f"manifest.json is invalid: {problems}") from None

@@ -1,0 +1,130 @@
+"""Self-calibration of the unknown camera on the journey's turns (the paper's Sec. III-A).
+
+Straight driving is a critical motion for self-calibration (depth and distortion conflate), so only
+frames around the turns that RDP found on the GPS track are used. Stage 1 maps a window with one
+focal length, the principal point at the image centre and k1 (COLMAP SIMPLE_RADIAL); stage 2 refines
+fx, fy, cx, cy, k1, k2 together (``colmap_refine``).
+
+Incremental mapping with free intrinsics is fragile on car footage: when COLMAP happens to start from
+a forward-moving pair, the two-view bundle adjustment drifts the focal length and k1 away and nothing
+else registers, or it settles in a wrong minimum. So several candidate windows around each turn are
+tried, strongest turn first, and judged by what a wrong calibration cannot fake: nearly every frame
+registered and a small stage-2 reprojection error (a wrong minimum leaves ~0.7 px, a right one
+~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins; otherwise
+the best acceptable one.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from app.pipeline.colmap_sfm import WindowRequest, WindowResult
+from app.pipeline.config import PipelineConfig
+from app.pipeline.turns import TurnWindow
+from app.pipeline.types import Calibration, CameraModel, PipelineError
+
+log = logging.getLogger(__name__)
+STAGE = "calibrate"
+
+# Candidate windows as (start, end) offsets from the turn vertex, in units of the window length:
+# centred first, then shifted towards the approach and the exit of the turn.
+CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17)
+
+
+def candidate_windows(turns: list[TurnWindow], n_frames: int,
+                      cfg: PipelineConfig) -> list[tuple[int, int]]:
+    """Frame ranges [start, end) to try, strongest turn first, at most ``calib_max_candidates``."""
+    size = min(cfg.calib_window_frames, n_frames)
+    ranked = sorted(turns, key=lambda t: -max(abs(t.angle_deg), getattr(t, "rotation_deg", 0.0)))
+    out: list[tuple[int, int]] = []
+    for offset in CANDIDATE_OFFSETS:
+        for turn in ranked:
+            start = int(np.clip(turn.vertex + round(offset * size), 0, n_frames - size))
+            if (start, start + size) not in out:
+                out.append((start, start + size))
+    return out[: cfg.calib_max_candidates]
+
+
+def initial_camera(width: int, height: int, cfg: PipelineConfig,
+                   hint: CameraModel | None = None) -> CameraModel:
+    """Stage-1 starting point: the manifest's hint if any, else a wide dash-cam guess."""
+    f = hint.fx if hint is not None else cfg.calib_initial_focal_factor * width
+    return CameraModel(width, height, f, f, (width - 1) / 2, (height - 1) / 2, 0.0, 0.0)
+
+
+def rotation_covered_deg(T_model_cam: np.ndarray) -> float:
+    """Largest rotation of any registered camera relative to the first, degrees."""
+    if len(T_model_cam) < 2:
+        return 0.0
+    R0 = T_model_cam[0, :3, :3]
+    rel = Rotation.from_matrix(np.einsum("ji,njk->nik", R0, T_model_cam[:, :3, :3]))
+    return float(np.degrees(rel.magnitude().max()))
+
+
+def _implausible(camera: CameraModel) -> str | None:
+    w, h = camera.width, camera.height
+    if not (0.8 < camera.fx / camera.fy < 1.25):
+        return f"fx/fy = {camera.fx / camera.fy:.2f} is implausible"
+    if not (0.1 * w < camera.fx < 10 * w):
+        return f"focal length {camera.fx:.0f} px is implausible for a {w} px wide image"
+    if not (0.25 * w < camera.cx < 0.75 * w and 0.25 * h < camera.cy < 0.75 * h):
+        return f"principal point ({camera.cx:.0f}, {camera.cy:.0f}) is far from the image centre"
+    if abs(camera.k1) > 1.5 or abs(camera.k2) > 1.5:
+        return f"distortion k1={camera.k1:.2f}, k2={camera.k2:.2f} is implausible"
+    return None
+
+
+def _judge(res: WindowResult, cfg: PipelineConfig) -> str | None:
+    """Why this candidate is unusable, or None."""
+    if res.error:
+        return res.error
+    if len(res.image_names) < cfg.calib_min_registered_ratio * res.n_input:
+        return f"only {len(res.image_names)}/{res.n_input} frames registered"
+    if res.reprojection_error_px > cfg.max_calib_reprojection_px:
+        return f"reprojection error {res.reprojection_error_px:.2f} px"
+    rotation = rotation_covered_deg(res.T_model_cam)
+    if rotation < cfg.min_turn_rotation_deg:
+        return f"only {rotation:.0f} deg of rotation"
+    return _implausible(res.camera)
+
+
+def no_turn_error(cfg: PipelineConfig) -> PipelineError:
+    return PipelineError(STAGE, "the journey has no turn (RDP found no heading change of "
+                         f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track); a straight road "
+                         "cannot calibrate the camera. Upload a journey with a turn first, or "
+                         "supply a calibration for this camera_id")
+
+
+def self_calibrate(turns: list[TurnWindow], frame_names: list[str], cfg: PipelineConfig,
+                   map_window: Callable[[WindowRequest], WindowResult], *,
+                   hint: CameraModel | None = None, width: int, height: int) -> Calibration:
+    """Try candidate windows until one calibrates well; raise PipelineError with every reason."""
+    windows = candidate_windows(turns, len(frame_names), cfg)
+    if not windows:
+        raise no_turn_error(cfg)
+    start = initial_camera(width, height, cfg, hint)
+    reasons, good = [], []
+    for a, b in windows:
+        res = map_window(WindowRequest(frame_names[a:b], start, calibrate=True))
+        why = _judge(res, cfg)
+        log.info("calibration candidate frames %d-%d: %s", a, b - 1,
+                 why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
+        if why:
+            reasons.append(f"frames {a}-{b - 1}: {why}")
+            continue
+        good.append(((a, b), res))
+        if res.reprojection_error_px <= cfg.calib_accept_reprojection_px:
+            break
+    if not good:
+        raise PipelineError(STAGE, "self-calibration failed on every turn window: "
+                            + "; ".join(reasons))
+    (a, b), best = min(good, key=lambda g: g[1].reprojection_error_px)
+    return Calibration(camera=best.camera, source="self", stage1=best.stage1_camera,
+                       n_images=best.n_input, n_registered=len(best.image_names),
+                       reprojection_error_px=best.reprojection_error_px,
+                       rotation_deg=rotation_covered_deg(best.T_model_cam), windows=[(a, b)])

@@ -1,0 +1,77 @@
+"""Stage 2 of self-calibration: refine fx, fy, cx, cy, k1, k2 together by bundle adjustment.
+
+The stage-1 reconstruction (one focal length, centred principal point, k1) is converted to COLMAP's
+OPENCV model (fx, fy, cx, cy, k1, k2, p1, p2) and bundle-adjusted with every intrinsic free except
+the tangential terms p1 = p2 = 0, which the paper's radial model does not have. COLMAP's BA flags
+switch whole parameter groups, so p1, p2 are held by a Ceres subset manifold on the camera's
+parameter block. Runs inside the COLMAP child process (``colmap_sfm``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+OPENCV_TANGENTIAL = [6, 7]
+
+
+def _to_opencv(pycolmap, cam) -> None:
+    p = np.asarray(cam.params, dtype=float)
+    if cam.model_name == "SIMPLE_RADIAL":
+        params = [p[0], p[0], p[1], p[2], p[3], 0.0, 0.0, 0.0]
+    elif cam.model_name == "RADIAL":
+        params = [p[0], p[0], p[1], p[2], p[3], p[4], 0.0, 0.0]
+    else:
+        params = list(p[:6]) + [0.0, 0.0]
+    cam.model = pycolmap.CameraModelId.OPENCV
+    cam.params = np.array(params, dtype=float)
+
+
+def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float) -> None:
+    import pyceres
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = True
+    options.refine_principal_point = principal_point
+    options.refine_extra_params = True
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = loss_scale_px
+    options.ceres.solver_options.max_num_iterations = 100
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
+    problem = adjuster.problem
+    # Keep the manifold and the parameter arrays alive in variables until solve() returns: a
+    # temporary manifold was seen to segfault inside solve().
+    manifolds = []
+    params_blocks = []
+    for cam in rec.cameras.values():
+        params = cam.params
+        if problem.has_parameter_block(params) and not problem.is_parameter_block_constant(params):
+            manifold = pyceres.SubsetManifold(len(params), OPENCV_TANGENTIAL)
+            problem.set_manifold(params, manifold)
+            manifolds.append(manifold)
+            params_blocks.append(params)
+    adjuster.solve()
+    rec.update_point_3d_errors()
+    del manifolds, params_blocks
+
+
+def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0) -> None:
+    """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
+
+    Two passes: first focal lengths and distortion with the principal point held (it is the
+    weakest-determined group and must not absorb the large stage-1 focal error), then everything;
+    observations with large errors are dropped in between.
+    """
+    for cam in rec.cameras.values():
+        _to_opencv(pycolmap, cam)
+    _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0)
+    _filter_observations(pycolmap, rec, filter_max_error_px)
+    _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0)
+
+
+def _filter_observations(pycolmap, rec, max_error_px: float) -> None:
+    pycolmap.ObservationManager(rec).filter_all_points3D(max_error_px, 1.5)

@@ -1,0 +1,64 @@
+"""Knobs of the journey pipeline. Part of the one settings object (``app.settings.Settings.pipeline``,
+environment ``SIGNMAP_PIPELINE__<NAME>``); every knob has a default that works on the synthetic
+journeys and on KITTI-like footage."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+
+class PipelineConfig(BaseModel):
+    # Geodesy: the paper's scaled Mercator (eq. 3-4) is kept for comparison with its figures.
+    metric_frame: Literal["enu", "mercator"] = "enu"
+
+    # Turn finding (RDP on the metric GPS track).
+    rdp_tolerance_m: float = Field(2.0, description="RDP tolerance on the metric GPS track")
+    turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
+    turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
+    calib_window_frames: int = Field(30, description="frames per calibration candidate window")
+    calib_max_candidates: int = Field(5, description="candidate windows tried per journey")
+    calib_initial_focal_factor: float = Field(
+        0.8, description="first focal guess as a multiple of the image width (dash cams are wide)")
+    calib_accept_reprojection_px: float = Field(
+        0.35, description="a candidate this good (after stage 2) ends the search early")
+    calib_min_registered_ratio: float = 0.9
+
+    # Feature extraction / matching (COLMAP).
+    sift_max_features: int = 2048
+    sift_max_image_size: int = 1600
+    sift_first_octave: int = Field(-1, description="-1 upsamples the image: more small features, slower")
+    match_overlap: int = Field(8, description="sequential matching: temporal neighbours per frame")
+    colmap_threads: int = Field(2, description="threads COLMAP may use (0 = all)")
+
+    # Ego-motion: reconstruct only windows around signs.
+    sign_window_margin_frames: int = Field(15, description="frames added before/after a sign track")
+    ego_max_frames_per_window: int = 80
+    ego_frame_step: int = Field(2, description="map every n-th frame of a sign window")
+    ego_position_priors: bool = Field(
+        False, description="GPS pose priors in COLMAP's mapping (slower; counters scale drift)")
+
+    # GPS noise assumed for pose priors (1 sigma, metres).
+    gps_sigma_m: float = 0.5
+    gps_alt_sigma_m: float = 1.0
+
+    # Alignment to GPS.
+    # "full": one similarity per reconstructed window (its frames are drift-free); "short": again
+    # over the frames around each sign, as the paper did against ORB-SLAM drift. Full measured
+    # better on our windows (bench).
+    alignment: Literal["short", "full"] = "full"
+    short_alignment_min_frames: int = 10
+
+    # Triangulation.
+    min_track_frames: int = 3
+    max_reprojection_rms_px: float = 4.0
+    max_sign_std_m: float = 2.0
+    min_ray_angle_deg: float = 1.0
+
+    reuse_known_calibration: bool = Field(
+        False, description="skip self-calibration when a calibration of this camera is known")
+
+    # Self-calibration acceptance.
+    min_turn_rotation_deg: float = Field(20.0, description="rotation a window needs to calibrate")
+    max_calib_reprojection_px: float = 1.0

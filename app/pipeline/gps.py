@@ -1,0 +1,232 @@
+"""GPS of a journey: parse ``gps.csv`` or ``gps.gpx`` and give every frame a time and a position.
+
+Sources, by precedence: ``gps.csv``, else ``gps.gpx``, else EXIF tags of JPEG frames
+(``app.pipeline.gps_exif``).
+
+``gps.csv`` (columns ``frame,timestamp_s,lat,lon[,alt_m]``; row numbers as in ``csv_table``):
+
+* a row with a frame and a position is both that frame's timestamp and a fix;
+* a row with an empty frame is a fix only; a row with a frame and empty lat/lon is a timestamp only;
+* fixes must come in strictly increasing time; every frame needs a timestamp, and frame timestamps
+  must increase in frame order; a row naming a frame that is not in ``frames/`` is used as a fix only;
+* lat/lon/alt are interpolated linearly in time to each frame; a frame may lie at most
+  ``MAX_EXTRAPOLATION_S`` outside the fixes' span (it then takes the end fix's position);
+* ``alt_m`` may be absent or empty: altitude is interpolated over the fixes that have one and is NaN
+  for frames outside their span.
+
+``gps.gpx`` (every ``<trkpt lat lon>`` with a ``<time>``, optional ``<ele>``, in document order):
+when there are exactly as many track points as frames, point i is frame i; otherwise the frames are
+spread uniformly in time over the track's first..last point. Timestamps are seconds since the first
+track point; a time without an offset is taken as UTC.
+
+Plausibility: positions may not move more than ``MAX_JUMP_M`` faster than ``MAX_SPEED_MPS`` between
+consecutive fixes or consecutive frames (a car cannot; GPS noise does not jump that far).
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Sequence
+
+import numpy as np
+from pyproj import Geod
+
+from app.pipeline.csv_table import parse_float, read_table
+from app.pipeline.types import BundleError
+
+MAX_EXTRAPOLATION_S = 0.5
+MAX_JUMP_M = 100.0
+MAX_SPEED_MPS = 100.0
+
+
+@dataclass(frozen=True)
+class GpsFixes:
+    """Position fixes in time order; arrays of shape (M,), ``alt_m`` NaN where unknown.
+    ``labels`` name each fix's origin for messages ("row 7", "track point 3")."""
+
+    timestamp_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class FrameGps:
+    """Per-frame time (s) and WGS84 position, arrays of shape (N,) aligned with the frames."""
+
+    timestamp_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+
+
+def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
+    if not -90.0 <= lat_deg <= 90.0:
+        raise BundleError(f"{where}: lat {lat_deg} is outside [-90, 90] degrees")
+    if not -180.0 <= lon_deg <= 180.0:
+        raise BundleError(f"{where}: lon {lon_deg} is outside [-180, 180] degrees")
+
+
+def check_frame_times(timestamp_s: np.ndarray, frame_ids: Sequence[str], *, strict: bool) -> None:
+    """Frames are ordered by file name; their clock must agree with that order."""
+    step = np.diff(timestamp_s)
+    bad = np.flatnonzero(step <= 0 if strict else step < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise BundleError(
+            f"frame timestamps are not increasing: frame {frame_ids[i + 1]} at "
+            f"{timestamp_s[i + 1]:.3f} s comes after frame {frame_ids[i]} at {timestamp_s[i]:.3f} s "
+            "(frames are ordered by file name)")
+
+
+def check_plausible_motion(timestamp_s: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray,
+                           labels: Sequence[str]) -> None:
+    """Reject the first step that moves > MAX_JUMP_M at > MAX_SPEED_MPS; ``labels`` name points."""
+    if len(timestamp_s) < 2:
+        return
+    _, _, dist_m = Geod(ellps="WGS84").inv(lon_deg[:-1], lat_deg[:-1], lon_deg[1:], lat_deg[1:])
+    dist_m = np.asarray(dist_m)
+    dt_s = np.diff(timestamp_s)
+    jump = (dist_m > MAX_JUMP_M) & (dist_m > MAX_SPEED_MPS * dt_s)
+    if np.any(jump):
+        i = int(np.flatnonzero(jump)[0])
+        raise BundleError(
+            f"GPS jumps {dist_m[i]:.0f} m in {dt_s[i]:.2f} s between {labels[i]} and "
+            f"{labels[i + 1]}; remove the outlier fix (more than {MAX_JUMP_M:.0f} m at over "
+            f"{MAX_SPEED_MPS:.0f} m/s is not a car)")
+
+
+def _interp_lon(t_query: np.ndarray, t_fix: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
+    # Unwrap so a track crossing the antimeridian does not interpolate through lon 0.
+    lon_unwrapped = np.unwrap(lon_deg, period=360.0)
+    lon = np.interp(t_query, t_fix, lon_unwrapped)
+    return (lon + 180.0) % 360.0 - 180.0 if np.any(np.abs(lon) > 180.0) else lon
+
+
+def interpolate_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
+                          frame_ids: Sequence[str]) -> FrameGps:
+    """Linear interpolation of the fixes to the frame times (the fixes must be time-ordered)."""
+    t_fix = fixes.timestamp_s
+    outside = ((frame_timestamp_s < t_fix[0] - MAX_EXTRAPOLATION_S)
+               | (frame_timestamp_s > t_fix[-1] + MAX_EXTRAPOLATION_S))
+    if np.any(outside):
+        i = int(np.flatnonzero(outside)[0])
+        raise BundleError(
+            f"frame {frame_ids[i]} at {frame_timestamp_s[i]:.3f} s is outside the GPS fixes' time "
+            f"span ({t_fix[0]:.3f} .. {t_fix[-1]:.3f} s); GPS must cover every frame")
+    lat = np.interp(frame_timestamp_s, t_fix, fixes.lat_deg)
+    lon = _interp_lon(frame_timestamp_s, t_fix, fixes.lon_deg)
+    alt = np.full(len(frame_timestamp_s), np.nan)
+    has_alt = np.isfinite(fixes.alt_m)
+    if np.any(has_alt):
+        t_alt = t_fix[has_alt]
+        inside = ((frame_timestamp_s >= t_alt[0] - MAX_EXTRAPOLATION_S)
+                  & (frame_timestamp_s <= t_alt[-1] + MAX_EXTRAPOLATION_S))
+        alt[inside] = np.interp(frame_timestamp_s[inside], t_alt, fixes.alt_m[has_alt])
+    return FrameGps(np.asarray(frame_timestamp_s, float), lat, lon, alt)
+
+
+def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
+                     frame_ids: Sequence[str]) -> FrameGps:
+    bad = np.flatnonzero(np.diff(fixes.timestamp_s) <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise BundleError(
+            f"GPS timestamps are not increasing at {fixes.labels[i + 1]} "
+            f"({fixes.timestamp_s[i + 1]:g} after {fixes.timestamp_s[i]:g})")
+    check_plausible_motion(fixes.timestamp_s, fixes.lat_deg, fixes.lon_deg, fixes.labels)
+    check_frame_times(frame_timestamp_s, frame_ids, strict=True)
+    frame_gps = interpolate_to_frames(fixes, frame_timestamp_s, frame_ids)
+    check_plausible_motion(frame_gps.timestamp_s, frame_gps.lat_deg, frame_gps.lon_deg,
+                           [f"frame {f}" for f in frame_ids])
+    return frame_gps
+
+
+def gps_from_csv(text: str, frame_ids: Sequence[str]) -> FrameGps:
+    """``gps.csv`` text -> per-frame GPS (see the module docstring for the rules)."""
+    rows = read_table(text, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",))
+    frame_t: dict[str, tuple[float, int]] = {}
+    t_fix, lat_fix, lon_fix, alt_fix, labels = [], [], [], [], []
+    for r in rows:
+        where = f"gps.csv row {r.row}"
+        t = parse_float(r["timestamp_s"], f"{where}: timestamp_s")
+        frame = r["frame"]
+        if frame:
+            if frame in frame_t and frame_t[frame][0] != t:
+                raise BundleError(f"{where} gives frame {frame} timestamp {t:g}, but row "
+                                  f"{frame_t[frame][1]} gave it {frame_t[frame][0]:g}")
+            frame_t[frame] = (t, r.row)
+        if not r["lat"] and not r["lon"]:
+            if not frame:
+                raise BundleError(f"{where} has neither a frame nor a position (lat, lon)")
+            continue
+        lat = parse_float(r["lat"], f"{where}: lat")
+        lon = parse_float(r["lon"], f"{where}: lon")
+        check_position(lat, lon, where)
+        alt = parse_float(r["alt_m"], f"{where}: alt_m") if r["alt_m"] else math.nan
+        t_fix.append(t), lat_fix.append(lat), lon_fix.append(lon), alt_fix.append(alt)
+        labels.append(f"row {r.row}")
+    if not t_fix:
+        raise BundleError("gps.csv has no GPS fixes (rows with lat and lon)")
+    for frame in frame_ids:
+        if frame not in frame_t:
+            raise BundleError(f"no GPS timestamp for frame {frame}: gps.csv needs a row with "
+                              f"frame={frame} and its timestamp_s")
+    fixes = GpsFixes(np.array(t_fix), np.array(lat_fix), np.array(lon_fix), np.array(alt_fix),
+                     tuple(labels))
+    frame_timestamp_s = np.array([frame_t[f][0] for f in frame_ids])
+    return _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)
+
+
+def parse_iso_time(text: str, where: str) -> datetime:
+    """ISO-8601 -> aware datetime; a time without an offset is taken as UTC."""
+    try:
+        value = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise BundleError(f"{where} is {text[:60]!r}, expected an ISO-8601 time such as "
+                          "2024-05-01T12:30:00Z") from None
+    return value if value.tzinfo else value.replace(tzinfo=timezone.utc)
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def parse_gpx(data: bytes) -> GpsFixes:
+    """Track points of a GPX 1.0/1.1 document; ``timestamp_s`` relative to the first point."""
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise BundleError(f"gps.gpx is not valid XML: {exc}") from None
+    times, lats, lons, alts, labels = [], [], [], [], []
+    for n, pt in enumerate((e for e in root.iter() if _local(e.tag) == "trkpt"), start=1):
+        where = f"gps.gpx track point {n}"
+        lat = parse_float(pt.get("lat", ""), f"{where}: lat")
+        lon = parse_float(pt.get("lon", ""), f"{where}: lon")
+        check_position(lat, lon, where)
+        children = {_local(c.tag): (c.text or "").strip() for c in pt}
+        if not children.get("time"):
+            raise BundleError(f"{where} has no <time>; every track point needs one")
+        times.append(parse_iso_time(children["time"], f"{where}: time"))
+        alts.append(parse_float(children["ele"], f"{where}: ele") if children.get("ele")
+                    else math.nan)
+        lats.append(lat), lons.append(lon), labels.append(f"track point {n}")
+    if not times:
+        raise BundleError("gps.gpx has no track points (<trkpt lat=.. lon=..><time>..</time>)")
+    t_s = np.array([(t - times[0]).total_seconds() for t in times])
+    return GpsFixes(t_s, np.array(lats), np.array(lons), np.array(alts), tuple(labels))
+
+
+def gps_from_gpx(data: bytes, frame_ids: Sequence[str]) -> FrameGps:
+    """``gps.gpx`` bytes -> per-frame GPS (see the module docstring for how frames get times)."""
+    fixes = parse_gpx(data)
+    t_fix = fixes.timestamp_s
+    if len(t_fix) == len(frame_ids):
+        frame_timestamp_s = t_fix.copy()
+    else:
+        frame_timestamp_s = np.linspace(t_fix[0], t_fix[-1], len(frame_ids))
+    return _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)

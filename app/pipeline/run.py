@@ -1,0 +1,189 @@
+"""The journey pipeline end to end: one validated journey in, triangulated signs out.
+
+Stages (each its own module): geodesy -> turns -> features (COLMAP) -> calibrate -> ego-motion ->
+align (georeference) -> triangulate. Progress is reported after each stage with the overall
+fraction done, weighted by the stages' typical cost.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
+from app.pipeline.config import PipelineConfig
+from app.pipeline.triangulation import TriangulationError, triangulate, undistort_pixels
+from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
+                                ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
+
+log = logging.getLogger(__name__)
+
+# Share of the total time each stage usually takes (for the progress fraction).
+STAGE_WEIGHTS = {"turns": 0.01, "calibrate": 0.5, "ego_motion": 0.43,
+                 "align": 0.01, "triangulate": 0.05}
+
+
+class _Clock:
+    def __init__(self, progress: ProgressFn):
+        self.timings_s: dict[str, float] = {}
+        self.progress = progress
+        self.done = 0.0
+
+    @contextmanager
+    def stage(self, name: str, message: str = ""):
+        self.progress(name, self.done, message)
+        t0 = time.perf_counter()
+        yield
+        self.timings_s[name] = round(time.perf_counter() - t0, 3)
+        self.done = min(1.0, self.done + STAGE_WEIGHTS.get(name, 0.0))
+        log.info("stage %s done in %.1f s %s", name, self.timings_s[name], message)
+
+
+def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
+                    known_camera: CameraModel | None = None, progress: ProgressFn = no_progress,
+                    verbose: bool = False) -> JourneyResult:
+    """Run every stage on ``journey``. ``known_camera``: an earlier calibration of this camera_id,
+    used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason."""
+    clock = _Clock(progress)
+    workdir.mkdir(parents=True, exist_ok=True)
+    names = [f.path.name for f in journey.frames]
+    image_dir = journey.frames[0].path.parent
+    n = len(journey.frames)
+
+    origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0],
+                              journey.alt_m[0] if journey.has_altitude else None,
+                              config.metric_frame)
+    xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg,
+                              journey.alt_m if journey.has_altitude else None)
+
+    with clock.stage("turns"):
+        turn_windows = turns.find_turns(xyz_gps[:, :2], tolerance_m=config.rdp_tolerance_m,
+                                        min_angle_deg=config.turn_min_angle_deg,
+                                        window_m=config.turn_window_m)
+        calib_windows = calibration.candidate_windows(turn_windows, n, config)
+        if known_camera is not None and config.reuse_known_calibration:
+            calib_windows = []
+        tracks = [t for t in ego_motion.sign_tracks(journey.detections, journey.frame_ids)
+                  if len(t.frame_idx) >= config.min_track_frames]
+        ego_windows = ego_motion.plan_windows(tracks, n, margin=config.sign_window_margin_frames,
+                                              max_frames=config.ego_max_frames_per_window)
+    log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
+             n, len(turn_windows), len(tracks), len(ego_windows))
+    if not calib_windows and known_camera is None:
+        raise calibration.no_turn_error(config)
+
+    features = colmap_sfm.FeatureOptions(config.sift_max_features, config.sift_max_image_size,
+                                         config.sift_first_octave, config.match_overlap,
+                                         config.colmap_threads)
+    needed = sorted({i for a, b in ego_windows for i in range(a, b, config.ego_frame_step)}
+                    | {i for a, b in calib_windows for i in range(a, b)})
+    sfm_dir = workdir / "sfm"
+
+    def sfm(requests):
+        nonlocal needed  # features are extracted once, by the first call
+        job = colmap_sfm.SfmJob(image_dir, sfm_dir, journey.image_width, journey.image_height,
+                                [names[i] for i in needed], requests, features, verbose,
+                                prior_enu={names[i]: tuple(xyz_gps[i]) for i in needed},
+                                prior_std_m=(config.gps_sigma_m, config.gps_alt_sigma_m))
+        needed = []
+        t0 = time.perf_counter()
+        results = colmap_sfm.run_sfm(job)
+        mapping = [r.mapping_s for r in results]
+        log.info("COLMAP: %d images featured+matched in %.1f s, %d windows mapped in %s s",
+                 len(job.extract_names), time.perf_counter() - t0 - sum(mapping), len(results),
+                 mapping)
+        return results
+
+    calib: Calibration
+    with clock.stage("calibrate", f"{len(calib_windows)} candidate windows"):
+        if calib_windows:
+            try:
+                calib = calibration.self_calibrate(
+                    turn_windows, names, config, lambda request: sfm([request])[0],
+                    hint=journey.camera_prior, width=journey.image_width,
+                    height=journey.image_height)
+            except PipelineError:
+                if known_camera is None:
+                    raise
+                log.warning("self-calibration failed; using the stored calibration of %s",
+                            journey.camera_id)
+                calib = Calibration(known_camera, "supplied")
+        else:
+            calib = Calibration(known_camera, "supplied")
+    camera = calib.camera
+
+    if not tracks:
+        return JourneyResult(calib, [], [], clock.timings_s,
+                             origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
+
+    with clock.stage("ego_motion", f"{len(ego_windows)} windows"):
+        results = sfm(ego_motion.requests(ego_windows, names, camera, step=config.ego_frame_step,
+                                          position_priors=config.ego_position_priors))
+        poses = ego_motion.window_poses(ego_windows, results, names)
+    if not poses:
+        raise PipelineError("ego_motion", "no window around the signs could be reconstructed: "
+                            + "; ".join(r.error or "too few frames registered" for r in results))
+
+    with clock.stage("align"):
+        aligned = []
+        for p in poses:
+            try:
+                aligned.append(georeference.align_window(p, xyz_gps))
+            except ValueError as exc:  # e.g. the car stood still through the whole window
+                log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
+    if not aligned:
+        raise PipelineError("align", "no reconstructed window could be aligned to GPS "
+                            "(the GPS track does not move enough around the signs)")
+
+    with clock.stage("triangulate", f"{len(tracks)} tracks"):
+        signs, rejected = _triangulate_all(tracks, aligned, xyz_gps, camera, journey, origin,
+                                           config)
+
+    # Overlapping windows pose some frames twice: keep the first window's pose.
+    traj_idx, first = np.unique(np.concatenate([w.poses.frame_idx for w in aligned]),
+                                return_index=True)
+    traj_T = np.concatenate([w.T_world_cam for w in aligned])[first]
+    progress("done", 1.0, f"{len(signs)} signs")
+    return JourneyResult(calib, signs, rejected, clock.timings_s,
+                         trajectory_frame_ids=[journey.frames[i].frame_id for i in traj_idx],
+                         trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_gps[traj_idx],
+                         trajectory_T_world_cam=traj_T,
+                         origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
+
+
+def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Journey,
+                     origin: geodesy.LocalFrame, config: PipelineConfig):
+    signs: list[Sign] = []
+    rejected: list[RejectedSign] = []
+    for track in tracks:
+        tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
+                                      margin=config.sign_window_margin_frames,
+                                      min_frames=config.short_alignment_min_frames)
+        if tp is None or tp.keep.sum() < 2:
+            rejected.append(RejectedSign(track.track_id, track.cls,
+                                         "its frames were not reconstructed"))
+            continue
+        px = undistort_pixels(camera, track.px[tp.keep])
+        try:
+            point = triangulate(tp.T_world_cam, px, camera.K,
+                                min_ray_angle_deg=config.min_ray_angle_deg,
+                                max_rms_px=config.max_reprojection_rms_px)
+        except TriangulationError as exc:
+            rejected.append(RejectedSign(track.track_id, track.cls, str(exc)))
+            continue
+        if point.std_m > config.max_sign_std_m:
+            rejected.append(RejectedSign(track.track_id, track.cls,
+                                         f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m"))
+            continue
+        lat, lon, alt = origin.to_geodetic(point.xyz_world[None, :])
+        frame_ids = [journey.frames[i].frame_id for i in track.frame_idx[tp.keep]]
+        signs.append(Sign(
+            track.track_id, track.cls, point.xyz_world, float(lat[0]), float(lon[0]),
+            float(alt[0]) if journey.has_altitude else None, point.std_m, point.rms_px,
+            [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, point.p_cam)],
+        ))
+    return signs, rejected

@@ -1,0 +1,188 @@
+"""Find the turns of a journey on its metric GPS track (the paper's Ramer-Douglas-Peucker step).
+
+Self-calibration is ill-posed under pure forward translation, so calibration uses the stretches of
+track where the car turns. The track is simplified with shapely's Douglas-Peucker
+(``simplify(preserve_topology=False)``); the corners of the simplified polyline are the turns.
+
+Input everywhere: ``xy_m``, shape (N, 2), one metric position per frame (ENU east, north, metres),
+in frame order. Heading changes are signed, left (counter-clockwise seen from above) positive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString
+
+
+@dataclass(frozen=True)
+class TurnWindow:
+    start: int  # first frame index (inclusive)
+    end: int  # last frame index (exclusive)
+    vertex: int  # frame index of the RDP vertex (the turn)
+    angle_deg: float  # heading change at that vertex (signed, left positive)
+    # Sum of |heading changes| of the turns in the window: differs from |angle_deg| when merged
+    # turns of opposite directions (an S-bend) cancel in angle_deg but still rotate the camera.
+    rotation_deg: float = 0.0
+
+
+# GPS jitter of a standing car that exceeds the tolerance survives simplification as a knot of
+# corners joined by segments a few metres long; real streets have longer straight pieces.
+_MIN_SEGMENT_TOLERANCES = 4.0
+
+
+@dataclass(frozen=True)
+class _Track:
+    """The simplified track: ``vertex_idx`` (K,) frame indices of its vertices, ``turn_deg`` (K,)
+    signed heading change at each vertex (0 at both ends), ``s_m`` (N,) track length of each
+    frame."""
+
+    vertex_idx: np.ndarray
+    turn_deg: np.ndarray
+    s_m: np.ndarray
+
+
+def _simplify(xy_m: np.ndarray, tolerance_m: float) -> _Track:
+    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    n = len(xy_m)
+    if n < 2:
+        return _Track(np.arange(n), np.zeros(n), np.zeros(n))
+    # Thinning to one point per quarter tolerance drops the repeated positions of a stopped car
+    # (zero-length segments) but keeps corner points in place, which thinning by the full
+    # tolerance would cut.
+    thinned = shapely.remove_repeated_points(LineString(xy_m), tolerance=0.25 * tolerance_m)
+    simple = thinned.simplify(tolerance_m, preserve_topology=False)
+    vertex_idx = _collapse_jitter(xy_m, _match_indices(xy_m, np.asarray(simple.coords)),
+                                  _MIN_SEGMENT_TOLERANCES * tolerance_m)
+    if len(vertex_idx) < 2:
+        return _Track(vertex_idx, np.zeros(len(vertex_idx)), np.zeros(n))
+
+    seg = np.diff(xy_m[vertex_idx], axis=0)
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    turn = np.angle(np.exp(1j * np.diff(heading)))  # wrapped to (-pi, pi]
+    turn_deg = np.concatenate([[0.0], np.degrees(turn), [0.0]])
+    return _Track(vertex_idx, turn_deg, _track_length(xy_m, vertex_idx))
+
+
+def _collapse_jitter(xy_m: np.ndarray, vertex_idx: np.ndarray, min_segment_m: float) -> np.ndarray:
+    """Replace each chain of interior vertices joined by segments shorter than ``min_segment_m``
+    with its middle vertex (the headings in and out of the knot then carry its net turn); a
+    chain attached to either end of the track is dropped."""
+    k_last = len(vertex_idx) - 1
+    if k_last < 2:
+        return vertex_idx
+    seg_len = np.linalg.norm(np.diff(xy_m[vertex_idx], axis=0), axis=1)
+    keep = [0]
+    k = 1
+    while k < k_last:
+        j = k
+        while j + 1 < k_last and seg_len[j] < min_segment_m:
+            j += 1
+        at_start = k == 1 and seg_len[0] < min_segment_m
+        at_end = j == k_last - 1 and seg_len[k_last - 1] < min_segment_m
+        if not (at_start or at_end):
+            keep.append((k + j) // 2)
+        k = j + 1
+    keep.append(k_last)
+    return vertex_idx[keep]
+
+
+def _match_indices(xy_m: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """Frame index of each simplified vertex. Douglas-Peucker keeps a subset of the input points in
+    order, so an in-order exact match is unambiguous even when the track revisits a place."""
+    out: list[int] = []
+    i = 0
+    for c in coords:
+        while i < len(xy_m) and not (xy_m[i, 0] == c[0] and xy_m[i, 1] == c[1]):
+            i += 1
+        if i == len(xy_m):
+            break
+        out.append(i)
+        i += 1
+    return np.asarray(out, dtype=int)
+
+
+def _track_length(xy_m: np.ndarray, vertex_idx: np.ndarray) -> np.ndarray:
+    """Track length (N,) of every frame, measured along the simplified polyline.
+
+    Each frame is projected onto the simplified segment it belongs to, so GPS noise and standstill
+    jitter add no length; the running maximum keeps the result monotone."""
+    n = len(xy_m)
+    a, b = xy_m[vertex_idx[:-1]], xy_m[vertex_idx[1:]]
+    seg_len = np.linalg.norm(b - a, axis=1)
+    seg_start_m = np.concatenate([[0.0], np.cumsum(seg_len)])
+    # Frames before the first / after the last vertex belong to the first / last segment.
+    k = np.clip(np.searchsorted(vertex_idx, np.arange(n), side="right") - 1, 0, len(seg_len) - 1)
+    d = (b - a)[k]
+    safe_len = np.where(seg_len[k] > 0, seg_len[k], 1.0)
+    along = np.einsum("ij,ij->i", xy_m - a[k], d) / safe_len
+    s = seg_start_m[k] + np.clip(along, 0.0, seg_len[k])
+    return np.maximum.accumulate(s)
+
+
+def _bends(track: _Track, window_m: float) -> list[list[int]]:
+    """Group consecutive interior vertices of one turning direction closer than window_m in track
+    length: a smooth curve simplifies into several small corners that together make one turn."""
+    groups: list[list[int]] = []
+    s_v = track.s_m[track.vertex_idx]
+    for k in range(1, len(track.vertex_idx) - 1):
+        t = track.turn_deg[k]
+        if t == 0.0:
+            continue
+        if groups:
+            last = groups[-1][-1]
+            if np.sign(track.turn_deg[last]) == np.sign(t) and s_v[k] - s_v[last] <= window_m:
+                groups[-1].append(k)
+                continue
+        groups.append([k])
+    return groups
+
+
+def find_turns(xy_m: np.ndarray, *, tolerance_m: float = 2.0, min_angle_deg: float = 30.0,
+               window_m: float = 40.0) -> list[TurnWindow]:
+    """Turn windows of a track ``xy_m`` (N, 2) ENU metres per frame, sorted by |angle| descending.
+
+    A corner of the simplified track (or a run of same-direction corners within ``window_m`` of
+    each other, i.e. a smooth curve, whose vertex is then its middle frame) is a turn when its
+    heading change reaches ``min_angle_deg``.
+    Its window holds the frames within ``window_m`` of track length before its first and after its
+    last corner; overlapping windows are merged (angles summed, vertex of the larger turn kept).
+    """
+    track = _simplify(xy_m, tolerance_m)
+    n = len(track.s_m)
+    s_v = track.s_m[track.vertex_idx]
+    windows: list[TurnWindow] = []
+    for group in _bends(track, window_m):
+        angle = float(np.sum(track.turn_deg[group]))
+        if abs(angle) < min_angle_deg:
+            continue
+        lo_m, hi_m = s_v[group[0]] - window_m, s_v[group[-1]] + window_m
+        start = int(np.searchsorted(track.s_m, lo_m, side="left"))
+        end = int(np.searchsorted(track.s_m, hi_m, side="right"))
+        if len(group) == 1:
+            vertex = int(track.vertex_idx[group[0]])
+        else:  # a curve: its middle, by track length
+            mid_m = 0.5 * (s_v[group[0]] + s_v[group[-1]])
+            vertex = int(np.searchsorted(track.s_m, mid_m, side="left"))
+        rotation = float(np.sum(np.abs(track.turn_deg[group])))
+        windows.append(TurnWindow(start, min(end, n), vertex, angle, rotation))
+
+    merged: list[TurnWindow] = []
+    for w in windows:  # already in track order
+        if merged and w.start < merged[-1].end:
+            prev = merged[-1]
+            vertex = prev.vertex if abs(prev.angle_deg) >= abs(w.angle_deg) else w.vertex
+            merged[-1] = TurnWindow(prev.start, max(prev.end, w.end), vertex,
+                                    prev.angle_deg + w.angle_deg,
+                                    prev.rotation_deg + w.rotation_deg)
+        else:
+            merged.append(w)
+    return sorted(merged, key=lambda w: -abs(w.angle_deg))
+
+
+def total_rotation_deg(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> float:
+    """Sum of |heading changes| (degrees) along the simplified track ``xy_m`` (N, 2): how much
+    rotation the journey contains, whatever its direction."""
+    return float(np.sum(np.abs(_simplify(xy_m, tolerance_m).turn_deg)))

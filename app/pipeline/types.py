@@ -1,0 +1,211 @@
+"""Typed values that flow between the pipeline steps.
+
+Conventions, stated once for the whole pipeline:
+
+* Pixels follow OpenCV: the centre of the top-left pixel is (0, 0); x right, y down. (COLMAP puts
+  pixel centres at +0.5; only ``app.pipeline.colmap_sfm`` converts, at the boundary.)
+* Camera frame ``cam``: x right, y down, z forward (OpenCV / the rectified camera of the contract).
+* World frame ``enu``: a local East-North-Up tangent plane in metres, origin at the journey's first
+  GPS fix (see ``app.pipeline.geodesy``).
+* A pose ``T_a_b`` maps points from frame b into frame a: ``p_a = R_a_b @ p_b + t_a_b``. Poses are
+  4x4 float64 arrays; stacks of them have shape (N, 4, 4).
+* Lens model: pinhole with zero skew and two-coefficient radial distortion (the paper's eq. 1-2,
+  OpenCV's ``k1, k2`` with ``p1 = p2 = k3 = 0``; COLMAP's OPENCV model with ``p1 = p2 = 0``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics and radial distortion of one physical camera, in pixels of the original image."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def dist(self) -> np.ndarray:
+        """OpenCV distortion vector (k1, k2, p1, p2)."""
+        return np.array([self.k1, self.k2, 0.0, 0.0])
+
+    def params(self) -> dict[str, float]:
+        """The six calibration parameters, as the contract's ``calibration`` object."""
+        return {k: float(getattr(self, k)) for k in ("fx", "fy", "cx", "cy", "k1", "k2")}
+
+    def replace(self, **changes: float) -> "CameraModel":
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_params(cls, width: int, height: int, params: dict[str, float]) -> "CameraModel":
+        return cls(width=width, height=height, **{k: float(params.get(k, 0.0)) for k in
+                                                   ("fx", "fy", "cx", "cy", "k1", "k2")})
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame of a journey; ``path`` is the image file on local disk."""
+
+    frame_id: str
+    path: Path
+    timestamp_s: float
+
+
+@dataclass(frozen=True)
+class Detection:
+    """A sign detection in one frame; the box is in the ORIGINAL (distorted) image, OpenCV pixels."""
+
+    frame_id: str
+    track_id: str
+    cls: str
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    score: float | None = None
+
+    @property
+    def centre_px(self) -> tuple[float, float]:
+        return (0.5 * (self.x1 + self.x2), 0.5 * (self.y1 + self.y2))
+
+
+@dataclass
+class Journey:
+    """A validated journey bundle, ready for the pipeline.
+
+    ``lat_deg``, ``lon_deg``, ``alt_m`` are GPS positions interpolated to each frame's timestamp,
+    shape (N,), aligned with ``frames``. ``alt_m`` is NaN everywhere when no altitude was uploaded.
+    """
+
+    camera_id: str
+    frames: list[Frame]
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+    detections: list[Detection]
+    image_width: int
+    image_height: int
+    vehicle_id: str | None = None
+    captured_at: str | None = None
+    camera_prior: CameraModel | None = None
+
+    @property
+    def has_altitude(self) -> bool:
+        return bool(np.all(np.isfinite(self.alt_m)))
+
+    @property
+    def frame_ids(self) -> list[str]:
+        return [f.frame_id for f in self.frames]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Outcome of self-calibration (or of reusing a stored calibration).
+
+    ``source`` is ``"self"`` when this journey calibrated itself, ``"supplied"`` when an earlier
+    calibration of the same ``camera_id`` was used, ``"prior"`` when the manifest's hint was used.
+    """
+
+    camera: CameraModel
+    source: str
+    stage1: CameraModel | None = None
+    n_images: int = 0
+    n_registered: int = 0
+    reprojection_error_px: float = float("nan")
+    rotation_deg: float = 0.0
+    windows: list[tuple[int, int]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class SignObservation:
+    """The sign's position in one observing frame's camera, metres (x right, y down, z forward)."""
+
+    frame_id: str
+    p_cam: tuple[float, float, float]
+
+
+@dataclass
+class Sign:
+    """One triangulated sign of a journey."""
+
+    track_id: str
+    cls: str
+    xyz_enu: np.ndarray  # (3,) metres in the journey's ENU frame
+    lat_deg: float
+    lon_deg: float
+    alt_m: float | None
+    std_m: float  # 1-sigma position uncertainty (sqrt of the largest covariance eigenvalue)
+    reprojection_rms_px: float
+    observations: list[SignObservation]
+
+
+@dataclass(frozen=True)
+class RejectedSign:
+    track_id: str
+    cls: str
+    reason: str
+
+
+@dataclass
+class JourneyResult:
+    """Everything the pipeline produces for one journey."""
+
+    calibration: Calibration
+    signs: list[Sign]
+    rejected: list[RejectedSign]
+    timings_s: dict[str, float]
+    # Estimated (aligned) camera centres and the GPS positions they were aligned to, ENU metres,
+    # for the frames that have a pose; shapes (M,3), frame ids of length M.
+    trajectory_frame_ids: list[str] = field(default_factory=list)
+    trajectory_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    # The aligned camera poses of those frames, (M, 4, 4) T_world_cam in the same ENU frame
+    # (change detection needs where each frame looked, not only where it was).
+    trajectory_T_world_cam: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    gps_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    origin_lat_lon_alt: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class Progress(Protocol):
+    """Called as the pipeline advances: stage name, overall fraction done in [0, 1], a message."""
+
+    def __call__(self, stage: str, fraction: float, message: str = "") -> None: ...
+
+
+def no_progress(stage: str, fraction: float, message: str = "") -> None:
+    """A Progress that ignores updates."""
+
+
+class PipelineError(Exception):
+    """A journey cannot be processed; ``stage`` names the step, the message says why."""
+
+    def __init__(self, stage: str, reason: str):
+        super().__init__(f"{stage}: {reason}")
+        self.stage = stage
+        self.reason = reason
+
+
+class BundleError(PipelineError):
+    """The uploaded bundle violates the wire contract; the message tells the user what to fix."""
+
+    def __init__(self, reason: str):
+        super().__init__("validate", reason)
+
+
+ProgressFn = Callable[[str, float, str], None]

@@ -1,0 +1,26 @@
+"""The operators' dashboard under /admin: ``mount_admin(app)`` adds its pages and static files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import xstatic.pkg.leaflet
+from fastapi import FastAPI, Request
+from fastapi.responses import RedirectResponse
+from fastapi.staticfiles import StaticFiles
+
+from app.service.admin.routes import router
+from app.service.admin.session import NotSignedIn
+
+STATIC_DIR = Path(__file__).parent / "static"
+
+
+def mount_admin(app: FastAPI) -> None:
+    app.include_router(router)
+    app.mount("/admin/static/leaflet", StaticFiles(directory=xstatic.pkg.leaflet.BASE_DIR),
+              name="admin-leaflet")
+    app.mount("/admin/static/app", StaticFiles(directory=STATIC_DIR), name="admin-static")
+
+    @app.exception_handler(NotSignedIn)
+    async def _to_sign_in(request: Request, _exc: NotSignedIn) -> RedirectResponse:
+        return RedirectResponse("/admin/login", status_code=303)

@@ -1,0 +1,177 @@
+"""HTTP routes of the wire contract (base path /api/v1)."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+import uuid
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+from sqlalchemy import delete, func, select
+from sqlalchemy.exc import IntegrityError
+
+from app.geojson import feature_collection
+from app.pipeline.bundle import read_bundle
+from app.pipeline.types import BundleError
+from app.service import queries, storage
+from app.service.auth import Principal, require
+from app.service.db import session_scope
+from app.service.models import Journey
+from app.service.schemas import ErrorOut, JourneyAccepted, JourneyOut, SignCollection
+from app.service.upload import FIELD, receive_bundle
+
+log = logging.getLogger(__name__)
+router = APIRouter(prefix="/api/v1")
+
+_AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorOut, "description": "no or unknown API key"},
+    403: {"model": ErrorOut, "description": "the key's role may not make this call"},
+}
+_NOT_YOURS = {404: {"model": ErrorOut, "description": "no such journey among the caller's"}}
+
+
+def _url(request: Request) -> str:
+    return request.app.state.settings.effective_database_url
+
+
+def _journey_out(row: Journey) -> dict[str, Any]:
+    return JourneyOut.model_validate(row, from_attributes=True).model_dump(mode="json")
+
+
+def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
+    with session_scope(_url(request)) as session:
+        row = session.get(Journey, journey_id)
+    # Another fleet's journey answers 404 like a missing one: ids are not disclosed across fleets.
+    if row is None or not who.owns(row.owner_key_id):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
+    return row
+
+
+@router.post(
+    "/journeys", status_code=status.HTTP_202_ACCEPTED, response_model=JourneyAccepted,
+    summary="Upload a journey bundle",
+    description=f"Multipart form with the journey zip (wire contract, section 1) in the field "
+                f"`{FIELD}`, e.g. `curl -H 'Authorization: Bearer $KEY' -F {FIELD}=@journey.zip "
+                f".../api/v1/journeys`. The bundle is validated before it is queued. Re-uploading "
+                f"the same bytes answers **200** with the existing journey (a failed one is queued "
+                f"again and answers 202).",
+    responses={200: {"model": JourneyAccepted, "description": "these bytes were uploaded before"},
+               400: {"model": ErrorOut, "description": "malformed multipart body"},
+               413: {"model": ErrorOut, "description": "over SIGNMAP_MAX_UPLOAD_MB"},
+               415: {"model": ErrorOut, "description": "not multipart/form-data"},
+               422: {"model": ErrorOut, "description": "the bundle breaks the wire contract"},
+               503: {"model": ErrorOut, "description": "the job queue is unreachable"},
+               **_AUTH_ERRORS},
+    # The body is parsed as a stream (not by FastAPI), so its schema is declared here for /docs.
+    openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
+        "schema": {"type": "object", "required": [FIELD], "properties": {FIELD: {
+            "type": "string", "format": "binary",
+            "description": "the journey bundle (.zip, wire contract section 1)"}}}}}}})
+async def upload_journey(request: Request,
+                         who: Annotated[Principal, Depends(require("fleet"))]) -> JSONResponse:
+    settings = request.app.state.settings
+    incoming = storage.incoming_path(settings.data_dir)
+    received = await receive_bundle(request, incoming, settings.max_upload_mb * 1024 * 1024)
+    try:
+        existing = _existing(request, who, received.sha256)
+        if existing is not None:
+            return existing
+        t0 = time.perf_counter()
+        extract_dir = incoming.with_suffix(".d")
+        try:
+            journey = await run_in_threadpool(read_bundle, incoming, extract_dir,
+                                              decode_images=True)
+        except BundleError as exc:
+            log.info("upload by key %s rejected: %s", who.key_id, exc.reason)
+            raise HTTPException(422, exc.reason) from exc
+        finally:
+            shutil.rmtree(extract_dir, ignore_errors=True)
+        validate_s = time.perf_counter() - t0
+        path, new_file = storage.keep_bundle(settings.data_dir, incoming, received.sha256)
+    finally:
+        incoming.unlink(missing_ok=True)
+
+    row = Journey(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
+                  vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
+                  bundle_sha256=received.sha256, bundle_bytes=received.n_bytes, status="queued",
+                  progress=0.0, n_frames=len(journey.frames), attempts=0)
+    try:
+        with session_scope(_url(request)) as session:
+            session.add(row)
+    except IntegrityError:  # the same bytes were accepted concurrently
+        existing = _existing(request, who, received.sha256)
+        if existing is not None:
+            return existing
+        raise
+    try:
+        request.app.state.queue.submit(row.id)
+    except Exception as exc:
+        log.exception("journey %s: could not be queued; upload undone", row.id)
+        _undo(request, row, path if new_file else None)
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            "the job queue is unreachable; try again later") from exc
+    log.info("journey %s queued: %d frames, camera %s, %d bytes, key %s, validated in %.1f s",
+             row.id, row.n_frames, row.camera_id, row.bundle_bytes, who.key_id, validate_s)
+    return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
+
+
+def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | None:
+    """The answer to a re-upload of bytes this owner uploaded before; a failed journey is requeued."""
+    with session_scope(_url(request)) as session:
+        row = session.scalars(select(Journey).where(Journey.owner_key_id == who.key_id,
+                                                    Journey.bundle_sha256 == sha256)).first()
+        if row is None:
+            return None
+        requeue = row.status == "failed"
+        if requeue:
+            row.status, row.stage, row.progress, row.error, row.attempts = (
+                "queued", None, 0.0, None, 0)
+    if requeue:
+        request.app.state.queue.submit(row.id)
+        log.info("journey %s: re-uploaded after failing; queued again", row.id)
+        return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
+    return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
+
+
+def _undo(request: Request, row: Journey, new_file) -> None:
+    with session_scope(_url(request)) as session:
+        session.execute(delete(Journey).where(Journey.id == row.id))
+        others = session.scalar(select(func.count()).select_from(Journey)
+                                .where(Journey.bundle_sha256 == row.bundle_sha256))
+    if new_file is not None and not others:
+        new_file.unlink(missing_ok=True)
+
+
+@router.get("/journeys", response_model=list[JourneyOut], summary="The caller's journeys",
+            description="Newest first; a fleet key sees its own journeys, an admin key all.",
+            responses=_AUTH_ERRORS)
+def list_journeys(request: Request, who: Annotated[Principal, Depends(require("fleet"))],
+                  limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
+    query = select(Journey).order_by(Journey.created_at.desc()).limit(limit)
+    if who.role != "admin":
+        query = query.where(Journey.owner_key_id == who.key_id)
+    with session_scope(_url(request)) as session:
+        return [_journey_out(row) for row in session.scalars(query)]
+
+
+@router.get("/journeys/{journey_id}", response_model=JourneyOut, summary="A journey's status",
+            responses={**_AUTH_ERRORS, **_NOT_YOURS})
+def get_journey(request: Request, journey_id: str,
+                who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
+    return _journey_out(_own_journey(request, journey_id, who))
+
+
+@router.get("/journeys/{journey_id}/signs", response_model=SignCollection,
+            summary="The signs one journey triangulated (GeoJSON)",
+            description="Empty until the journey is done. Each feature carries the sign's "
+                        "position in every observing frame's camera.",
+            responses={**_AUTH_ERRORS, **_NOT_YOURS})
+def get_journey_signs(request: Request, journey_id: str,
+                      who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
+    _own_journey(request, journey_id, who)
+    with session_scope(_url(request)) as session:
+        return feature_collection(queries.journey_signs(session, journey_id))

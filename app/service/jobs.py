@@ -1,0 +1,111 @@
+"""The one journey job, run alike by the Celery task and by the embedded worker."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+import time
+
+from app.pipeline.bundle import read_bundle
+from app.pipeline.run import process_journey
+from app.pipeline.types import PipelineError
+from app.service import fusion_job, jobstate, storage
+from app.service.db import session_scope
+from app.service.models import Journey
+from app.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+class Superseded(Exception):
+    """This run was given up for dead and the journey now belongs to a newer run."""
+
+
+class _Heartbeat(threading.Thread):
+    """Stamps the heartbeat every ``interval_s`` while the pipeline runs; a stage can take minutes
+    and a silent run would otherwise look dead."""
+
+    def __init__(self, url: str, journey_id: str, attempt: int, interval_s: float):
+        super().__init__(name=f"heartbeat-{journey_id}", daemon=True)
+        self.url, self.journey_id, self.attempt, self.interval_s = url, journey_id, attempt, interval_s
+        self.stopped = threading.Event()
+        self.lost = threading.Event()
+
+    def run(self) -> None:
+        while not self.stopped.wait(self.interval_s):
+            try:
+                with session_scope(self.url) as session:
+                    if not jobstate.beat(session, self.journey_id, self.attempt):
+                        self.lost.set()
+                        return
+            except Exception:  # a database hiccup must not end the job; the next beat retries
+                log.warning("journey %s: heartbeat failed", self.journey_id, exc_info=True)
+
+
+def run_journey(journey_id: str, settings: Settings) -> None:
+    """Process one uploaded journey and store its signs; every outcome ends in the journey's row
+    (done, or failed with a reason). Safe to call again for the same journey: it claims the row
+    first and replaces, never adds, the journey's signs."""
+    url = settings.effective_database_url
+    with session_scope(url) as session:
+        attempt = jobstate.claim(session, journey_id, settings.stale_after_s, settings.max_attempts)
+        row = session.get(Journey, journey_id) if attempt is not None else None
+        sha256, camera_id = (row.bundle_sha256, row.camera_id) if row else (None, None)
+        known_camera = (jobstate.latest_calibration(session, camera_id, journey_id)
+                        if row else None)
+    if attempt is None:
+        log.info("journey %s: not claimed (finished, unknown or owned by a live run)", journey_id)
+        return
+    log.info("journey %s: attempt %d started (camera %s, stored calibration: %s)", journey_id,
+             attempt, camera_id, "yes" if known_camera else "no")
+    t0 = time.perf_counter()
+    workdir = storage.work_dir(settings.data_dir, journey_id, attempt)
+    heartbeat = _Heartbeat(url, journey_id, attempt, settings.heartbeat_s)
+    heartbeat.start()
+
+    def progress(stage: str, fraction: float, message: str = "") -> None:
+        if heartbeat.lost.is_set():
+            raise Superseded(journey_id)
+        log.info("journey %s: %s %.0f%% %s", journey_id, stage, 100 * fraction, message)
+        with session_scope(url) as session:
+            if not jobstate.beat(session, journey_id, attempt, stage, fraction):
+                raise Superseded(journey_id)
+
+    stage = "extract"
+    try:
+        bundle = storage.bundle_path(settings.data_dir, sha256)
+        if not bundle.is_file():
+            # The API and every worker must share data_dir (docs/service.md).
+            raise PipelineError(stage, f"the stored bundle {bundle} is missing on this worker")
+        journey = read_bundle(bundle, workdir / "bundle", decode_images=False)
+        progress("extract", 0.0, f"{len(journey.frames)} frames")
+        stage = "pipeline"
+        result = process_journey(journey, settings.pipeline, workdir / "pipeline",
+                                 known_camera=known_camera, progress=progress)
+        timings_s = {**result.timings_s, "total_s": round(time.perf_counter() - t0, 3)}
+        stored = fusion_job.store_and_fuse(url, journey_id, attempt, journey, result, timings_s,
+                                           known_camera, settings)
+        if not stored:
+            raise Superseded(journey_id)
+        log.info("journey %s: done in %.1f s, %d signs (calibration: %s), stages %s", journey_id,
+                 timings_s["total_s"], len(result.signs), result.calibration.source,
+                 result.timings_s)
+    except Superseded:
+        log.warning("journey %s: attempt %d was superseded by a newer run; its result is dropped",
+                    journey_id, attempt)
+    except PipelineError as exc:
+        log.info("journey %s: failed at %s: %s", journey_id, exc.stage, exc.reason)
+        _fail(url, journey_id, attempt, exc.stage, exc.reason)
+    except Exception as exc:
+        log.exception("journey %s: internal error during %s", journey_id, stage)
+        _fail(url, journey_id, attempt, None,
+              f"internal error during {stage}: {type(exc).__name__}: {exc}")
+    finally:
+        heartbeat.stopped.set()
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str) -> None:
+    with session_scope(url) as session:
+        jobstate.fail(session, journey_id, attempt, stage, reason)

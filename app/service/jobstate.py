@@ -1,0 +1,154 @@
+"""The journey row's life cycle in the database: claim, heartbeat, progress, result, failure, recovery.
+
+Every run first *claims* the journey, which increments ``attempts``; afterwards it only writes while
+the row still carries that attempt number. A run that was given up for dead (stale heartbeat) and
+then wakes up can therefore never overwrite the run that replaced it.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timedelta
+
+from sqlalchemy import and_, delete, or_, select, update
+from sqlalchemy.orm import Session
+
+from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult
+from app.service.models import CalibrationRecord, Journey, JourneySign, utc_now
+
+
+def _stale(cutoff: datetime):
+    return and_(Journey.status == "running",
+                or_(Journey.heartbeat_at.is_(None), Journey.heartbeat_at < cutoff))
+
+
+def _mine(journey_id: str, attempt: int):
+    return and_(Journey.id == journey_id, Journey.attempts == attempt, Journey.status == "running")
+
+
+def claim(session: Session, journey_id: str, stale_after_s: float, max_attempts: int) -> int | None:
+    """Mark the journey running if it is queued, or running with a stale heartbeat and attempts
+    left; return the new attempt number, or None when another run owns it or it is finished."""
+    now = utc_now()
+    cutoff = now - timedelta(seconds=stale_after_s)
+    give_up_exhausted(session, cutoff, max_attempts)
+    return session.scalars(
+        update(Journey)
+        .where(Journey.id == journey_id,
+               or_(Journey.status == "queued",
+                   and_(_stale(cutoff), Journey.attempts < max_attempts)))
+        .values(status="running", attempts=Journey.attempts + 1, stage="start", progress=0.0,
+                error=None, started_at=now, heartbeat_at=now, finished_at=None)
+        .returning(Journey.attempts)
+    ).first()
+
+
+def give_up_exhausted(session: Session, cutoff: datetime, max_attempts: int) -> None:
+    session.execute(
+        update(Journey)
+        .where(_stale(cutoff), Journey.attempts >= max_attempts)
+        .values(status="failed", finished_at=utc_now(),
+                error=f"gave up after {max_attempts} attempts: the worker died or stalled each time")
+    )
+
+
+def requeue_stale(session: Session, stale_after_s: float, max_attempts: int) -> list[str]:
+    """Put running journeys whose heartbeat is older than ``stale_after_s`` back to queued (or fail
+    them when their attempts are used up); return the ids that need to be submitted again."""
+    cutoff = utc_now() - timedelta(seconds=stale_after_s)
+    give_up_exhausted(session, cutoff, max_attempts)
+    return list(session.scalars(
+        update(Journey).where(_stale(cutoff)).values(status="queued", stage="requeued")
+        .returning(Journey.id)
+    ))
+
+
+def abandon(session: Session, journey_id: str) -> None:
+    """The process running this journey is known to be dead: make it stale at once."""
+    session.execute(update(Journey).where(Journey.id == journey_id, Journey.status == "running")
+                    .values(heartbeat_at=None))
+
+
+def queued_ids(session: Session) -> list[str]:
+    return list(session.scalars(select(Journey.id).where(Journey.status == "queued")
+                                .order_by(Journey.created_at)))
+
+
+def beat(session: Session, journey_id: str, attempt: int, stage: str | None = None,
+         progress: float | None = None) -> bool:
+    """Stamp the heartbeat (and the stage/progress when given); False if this run lost the job."""
+    values: dict = {"heartbeat_at": utc_now()}
+    if stage is not None:
+        values["stage"] = stage[:64]
+    if progress is not None:
+        values["progress"] = min(1.0, max(0.0, float(progress)))
+    return session.execute(update(Journey).where(_mine(journey_id, attempt)).values(**values)
+                           ).rowcount == 1
+
+
+def fail(session: Session, journey_id: str, attempt: int, stage: str | None, reason: str) -> bool:
+    values: dict = {"status": "failed", "error": reason, "finished_at": utc_now()}
+    if stage is not None:
+        values["stage"] = stage[:64]
+    return session.execute(update(Journey).where(_mine(journey_id, attempt)).values(**values)
+                           ).rowcount == 1
+
+
+def latest_calibration(session: Session, camera_id: str, exclude_journey_id: str
+                       ) -> CameraModel | None:
+    """The camera's newest stored self-calibration, not counting this journey's own (so that a
+    re-run of a journey calibrates itself again, exactly as the first run did)."""
+    row = session.scalars(
+        select(CalibrationRecord)
+        .where(CalibrationRecord.camera_id == camera_id,
+               CalibrationRecord.journey_id != exclude_journey_id)
+        .order_by(CalibrationRecord.created_at.desc(), CalibrationRecord.id.desc())
+    ).first()
+    if row is None:
+        return None
+    return CameraModel(row.width, row.height, row.fx, row.fy, row.cx, row.cy, row.k1, row.k2)
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def store_result(session: Session, journey_id: str, attempt: int, journey: JourneyData,
+                 result: JourneyResult, timings_s: dict[str, float]) -> bool:
+    """Replace the journey's signs and calibration with ``result`` and mark it done, all in the
+    caller's one transaction. False (nothing written) when this run no longer owns the journey."""
+    row = session.scalars(select(Journey).where(_mine(journey_id, attempt)).with_for_update()
+                          ).first()
+    if row is None:
+        return False
+    session.execute(delete(JourneySign).where(JourneySign.journey_id == journey_id))
+    session.execute(delete(CalibrationRecord).where(CalibrationRecord.journey_id == journey_id))
+    boxes = {(d.frame_id, d.track_id): [d.x1, d.y1, d.x2, d.y2] for d in journey.detections}
+    session.add_all(
+        JourneySign(
+            id=f"{journey_id}:{s.track_id}", journey_id=journey_id, track_id=s.track_id, cls=s.cls,
+            lat_deg=float(s.lat_deg), lon_deg=float(s.lon_deg), alt_m=_finite_or_none(s.alt_m),
+            x_enu_m=float(s.xyz_enu[0]), y_enu_m=float(s.xyz_enu[1]), z_enu_m=float(s.xyz_enu[2]),
+            std_m=float(s.std_m), reprojection_rms_px=float(s.reprojection_rms_px),
+            observations=[{"frame": o.frame_id, "x": float(o.p_cam[0]), "y": float(o.p_cam[1]),
+                           "z": float(o.p_cam[2]), "box": boxes.get((o.frame_id, s.track_id))}
+                          for o in s.observations],
+        )
+        for s in result.signs
+    )
+    calib = result.calibration
+    if calib.source == "self":
+        cam = calib.camera
+        session.add(CalibrationRecord(
+            camera_id=journey.camera_id, journey_id=journey_id, width=cam.width, height=cam.height,
+            **cam.params(), n_images=calib.n_images, n_registered=calib.n_registered,
+            reprojection_error_px=_finite_or_none(calib.reprojection_error_px),
+            rotation_deg=float(calib.rotation_deg)))
+    now = utc_now()
+    row.status, row.stage, row.progress, row.error = "done", "done", 1.0, None
+    row.n_signs = len(result.signs)
+    row.calibration = calib.camera.params()
+    row.calibration_source = calib.source
+    row.timings_s = {k: _finite_or_none(v) for k, v in timings_s.items()}
+    row.finished_at = row.heartbeat_at = now
+    return True

@@ -1,0 +1,182 @@
+"""SQLAlchemy 2 models of the service. The schema itself is created only by the Alembic migrations in
+``migrations/`` (SQLite and PostgreSQL alike); the bbox indexes differ per database and live there."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Any
+
+from sqlalchemy import (JSON, DateTime, Float, ForeignKey, Integer, String, Text, TypeDecorator,
+                        UniqueConstraint)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+ROLES = ("fleet", "reader", "admin")
+STATUSES = ("queued", "running", "done", "failed")
+
+
+def utc_now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+class UTCDateTime(TypeDecorator):
+    """Aware UTC datetimes on every database: SQLite drops the zone on storage, so it is put back."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect) -> datetime | None:
+        if value is not None and dialect.name == "sqlite":
+            return value.astimezone(timezone.utc).replace(tzinfo=None)
+        return value
+
+    def process_result_value(self, value: datetime | None, dialect) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            return value.replace(tzinfo=timezone.utc)
+        return value
+
+
+class Base(DeclarativeBase):
+    type_annotation_map = {datetime: UTCDateTime, dict[str, Any]: JSON, list[Any]: JSON}
+
+
+class ApiKey(Base):
+    __tablename__ = "api_keys"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    role: Mapped[str] = mapped_column(String(16))
+    key_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class Journey(Base):
+    __tablename__ = "journeys"
+    # The same bytes from the same owner are one journey (see docs/service.md, "Re-uploads").
+    __table_args__ = (UniqueConstraint("owner_key_id", "bundle_sha256", name="uq_journeys_owner_bundle"),)
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    # NULL when uploaded with the environment's admin key, which has no row.
+    owner_key_id: Mapped[int | None] = mapped_column(ForeignKey("api_keys.id"), index=True)
+    camera_id: Mapped[str] = mapped_column(String(200), index=True)
+    vehicle_id: Mapped[str | None] = mapped_column(String(200))
+    captured_at: Mapped[str | None] = mapped_column(String(64))
+    bundle_sha256: Mapped[str] = mapped_column(String(64))
+    bundle_bytes: Mapped[int] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(16), index=True, default="queued")
+    stage: Mapped[str | None] = mapped_column(String(64))
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    error: Mapped[str | None] = mapped_column(Text)
+    n_frames: Mapped[int] = mapped_column(Integer)
+    n_signs: Mapped[int | None] = mapped_column(Integer)
+    calibration: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    calibration_source: Mapped[str | None] = mapped_column(String(16))
+    timings_s: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    started_at: Mapped[datetime | None]
+    finished_at: Mapped[datetime | None]
+    heartbeat_at: Mapped[datetime | None]
+    # Incremented by every claim; a run only writes while the row still carries its own attempt.
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    # Set when this journey's self-calibration disagrees with the camera's stored one (fusion_job).
+    calibration_flag: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+
+
+class JourneySign(Base):
+    """One triangulated sign of one journey; ``observations`` is a JSON list of
+    ``{"frame", "x", "y", "z", "box": [x1, y1, x2, y2] | null}`` (camera metres, original pixels)."""
+
+    __tablename__ = "journey_signs"
+
+    # "<journey id>:<track id>": a re-run of the journey reproduces the same keys.
+    id: Mapped[str] = mapped_column(String, primary_key=True)
+    journey_id: Mapped[str] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"), index=True)
+    track_id: Mapped[str] = mapped_column(String)
+    cls: Mapped[str] = mapped_column("class", String(200), index=True)
+    lat_deg: Mapped[float] = mapped_column(Float)
+    lon_deg: Mapped[float] = mapped_column(Float)
+    alt_m: Mapped[float | None] = mapped_column(Float)
+    x_enu_m: Mapped[float] = mapped_column(Float)
+    y_enu_m: Mapped[float] = mapped_column(Float)
+    z_enu_m: Mapped[float] = mapped_column(Float)
+    std_m: Mapped[float] = mapped_column(Float)
+    reprojection_rms_px: Mapped[float] = mapped_column(Float)
+    observations: Mapped[list[Any]] = mapped_column(JSON)
+
+
+class CalibrationRecord(Base):
+    """Every successful self-calibration; the camera's latest one is reused by later journeys."""
+
+    __tablename__ = "calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(200), index=True)
+    journey_id: Mapped[str] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"), index=True)
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    fx: Mapped[float] = mapped_column(Float)
+    fy: Mapped[float] = mapped_column(Float)
+    cx: Mapped[float] = mapped_column(Float)
+    cy: Mapped[float] = mapped_column(Float)
+    k1: Mapped[float] = mapped_column(Float)
+    k2: Mapped[float] = mapped_column(Float)
+    n_images: Mapped[int] = mapped_column(Integer)
+    n_registered: Mapped[int] = mapped_column(Integer)
+    reprojection_error_px: Mapped[float | None] = mapped_column(Float)
+    rotation_deg: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class MapSign(Base):
+    """One fused sign of the map (``app.fusion.MapSign``); ``removed_at`` set = a tombstone kept
+    for GET /signs/changes. ``cov_enu`` is the (3, 3) ENU covariance as nested lists, m^2."""
+
+    __tablename__ = "map_signs"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    cls: Mapped[str] = mapped_column("class", String(200), index=True)
+    lat_deg: Mapped[float] = mapped_column(Float)
+    lon_deg: Mapped[float] = mapped_column(Float)
+    alt_m: Mapped[float | None] = mapped_column(Float)
+    cov_enu: Mapped[list[Any]] = mapped_column(JSON)
+    std_m: Mapped[float] = mapped_column(Float)
+    n_journeys: Mapped[int] = mapped_column(Integer)
+    n_observations: Mapped[int] = mapped_column(Integer)
+    first_seen_at: Mapped[datetime]
+    last_seen_at: Mapped[datetime]
+    state: Mapped[str] = mapped_column(String(32))
+    evidence: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, index=True)
+    removed_at: Mapped[datetime | None]
+
+
+class MapSignMember(Base):
+    __tablename__ = "map_sign_members"
+
+    map_sign_id: Mapped[str] = mapped_column(ForeignKey("map_signs.id", ondelete="CASCADE"),
+                                             primary_key=True)
+    journey_sign_id: Mapped[str] = mapped_column(
+        ForeignKey("journey_signs.id", ondelete="CASCADE"), primary_key=True, index=True)
+    weight: Mapped[float] = mapped_column(Float)
+
+
+class JourneyCoverage(Base):
+    """Where a done journey's camera looked: aligned poses ``poses`` (N x 12 floats, the rows of
+    T_world_cam[:3, :4], ENU metres at the origin), the camera model, and the bbox of its centres."""
+
+    __tablename__ = "journey_coverage"
+
+    journey_id: Mapped[str] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"),
+                                            primary_key=True)
+    journey_key: Mapped[str] = mapped_column(String(120))
+    captured_at_s: Mapped[float] = mapped_column(Float)
+    origin_lat_deg: Mapped[float] = mapped_column(Float)
+    origin_lon_deg: Mapped[float] = mapped_column(Float)
+    origin_alt_m: Mapped[float] = mapped_column(Float)
+    camera: Mapped[dict[str, Any]] = mapped_column(JSON)
+    frame_ids: Mapped[list[Any]] = mapped_column(JSON)
+    poses: Mapped[list[Any]] = mapped_column(JSON)
+    min_lat_deg: Mapped[float | None] = mapped_column(Float)
+    min_lon_deg: Mapped[float | None] = mapped_column(Float)
+    max_lat_deg: Mapped[float | None] = mapped_column(Float)
+    max_lon_deg: Mapped[float | None] = mapped_column(Float)

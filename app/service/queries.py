@@ -1,0 +1,84 @@
+"""Reading signs out of the database as GeoJSON features."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Select, and_, func, or_, select
+from sqlalchemy.orm import Session
+
+from app.geojson import sign_feature
+from app.service.models import Journey, JourneySign
+
+
+@dataclass(frozen=True)
+class BBox:
+    """WGS84 degrees; ``min_lon > max_lon`` means the box crosses the antimeridian (RFC 7946 5.2)."""
+
+    min_lon: float
+    min_lat: float
+    max_lon: float
+    max_lat: float
+
+    @classmethod
+    def parse(cls, text: str) -> "BBox":
+        """From ``minlon,minlat,maxlon,maxlat``; ValueError says what is wrong."""
+        parts = text.split(",")
+        if len(parts) != 4:
+            raise ValueError("bbox must be minlon,minlat,maxlon,maxlat")
+        try:
+            box = cls(*(float(p) for p in parts))
+        except ValueError:
+            raise ValueError("bbox values must be numbers") from None
+        if not all(-180 <= v <= 180 for v in (box.min_lon, box.max_lon)):
+            raise ValueError("bbox longitudes must be within [-180, 180]")
+        if not all(-90 <= v <= 90 for v in (box.min_lat, box.max_lat)):
+            raise ValueError("bbox latitudes must be within [-90, 90]")
+        if box.min_lat > box.max_lat:
+            raise ValueError("bbox minlat must not exceed maxlat")
+        return box
+
+    def lon_ranges(self) -> list[tuple[float, float]]:
+        if self.min_lon <= self.max_lon:
+            return [(self.min_lon, self.max_lon)]
+        return [(self.min_lon, 180.0), (-180.0, self.max_lon)]
+
+
+def _in_bbox(dialect: str, bbox: BBox):
+    if dialect == "postgresql":
+        # Matches the GiST index on point(lon_deg, lat_deg) (migration 0001).
+        point = func.point(JourneySign.lon_deg, JourneySign.lat_deg)
+        return or_(*(point.op("<@")(func.box(func.point(lo, bbox.min_lat),
+                                             func.point(hi, bbox.max_lat)))
+                     for lo, hi in bbox.lon_ranges()))
+    return and_(JourneySign.lat_deg.between(bbox.min_lat, bbox.max_lat),
+                or_(*(JourneySign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
+
+
+def map_signs_query(dialect: str, bbox: BBox, cls: str | None = None, limit: int = 1000) -> Select:
+    query = (select(JourneySign).join(Journey, Journey.id == JourneySign.journey_id)
+             .where(Journey.status == "done", _in_bbox(dialect, bbox))
+             .order_by(JourneySign.id).limit(limit))
+    return query if cls is None else query.where(JourneySign.cls == cls)
+
+
+def map_signs(session: Session, bbox: BBox, cls: str | None = None, limit: int = 1000
+              ) -> list[dict[str, Any]]:
+    """The map's signs inside ``bbox`` as GeoJSON features. For now the union of every done
+    journey's signs; the fusion step will replace this one function with fused map signs."""
+    query = map_signs_query(session.get_bind().dialect.name, bbox, cls, limit)
+    return [_feature(row, with_observations=False) for row in session.scalars(query)]
+
+
+def journey_signs(session: Session, journey_id: str) -> list[dict[str, Any]]:
+    rows = session.scalars(select(JourneySign).where(JourneySign.journey_id == journey_id)
+                           .order_by(JourneySign.id))
+    return [_feature(row, with_observations=True) for row in rows]
+
+
+def _feature(row: JourneySign, with_observations: bool) -> dict[str, Any]:
+    extra: dict[str, Any] = {"observations": row.observations} if with_observations else {}
+    return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m,
+                        track_id=row.track_id, journey_id=row.journey_id, std_m=row.std_m,
+                        reprojection_rms_px=row.reprojection_rms_px, **extra)

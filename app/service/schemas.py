@@ -1,0 +1,106 @@
+"""Response models of the HTTP API (the wire contract, section 2), with examples for /docs."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+JOURNEY_ID_EXAMPLE = "6f1c2a3e-8d4b-4f7e-9a51-0c2d3e4f5a6b"
+
+
+class ErrorOut(BaseModel):
+    detail: Any = Field(description="what is wrong, for a human", examples=[
+        "gps.csv: timestamp_s must increase (row 12)"])
+
+
+class JourneyAccepted(BaseModel):
+    id: str = Field(examples=[JOURNEY_ID_EXAMPLE])
+    status: Literal["queued", "running", "done", "failed"] = Field(
+        description="'queued' for a new upload; a re-upload of the same bytes answers the existing "
+                    "journey's current status")
+
+
+class CalibrationOut(BaseModel):
+    """Pinhole + two-coefficient radial model, pixels of the original image (OpenCV convention)."""
+
+    fx: float = Field(examples=[721.5])
+    fy: float = Field(examples=[721.5])
+    cx: float = Field(examples=[609.6])
+    cy: float = Field(examples=[172.9])
+    k1: float = Field(examples=[-0.3])
+    k2: float = Field(examples=[0.1])
+
+
+class JourneyOut(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{
+        "id": JOURNEY_ID_EXAMPLE, "status": "done", "stage": "done", "progress": 1.0, "error": None,
+        "calibration": {"fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9, "k1": -0.3, "k2": 0.1},
+        "calibration_source": "self", "n_frames": 120, "n_signs": 4, "camera_id": "cam-17",
+        "vehicle_id": "van-3", "captured_at": "2026-11-20T08:15:00Z", "attempts": 1,
+        "timings_s": {"turns": 0.02, "calibrate": 31.2, "ego_motion": 24.8, "total_s": 61.0},
+        "created_at": "2026-11-21T10:00:00Z", "started_at": "2026-11-21T10:00:01Z",
+        "finished_at": "2026-11-21T10:01:02Z"}]})
+
+    id: str
+    status: Literal["queued", "running", "done", "failed"]
+    stage: str | None = Field(description="pipeline stage running now, or where it failed")
+    progress: float = Field(ge=0.0, le=1.0)
+    error: str | None = Field(description="why the journey failed")
+    calibration: CalibrationOut | None = Field(description="the camera model used, once done")
+    calibration_source: str | None = Field(
+        description="'self' (this journey calibrated the camera), 'supplied' (an earlier "
+                    "calibration of the same camera_id), 'prior' (the manifest's hint)")
+    n_frames: int
+    n_signs: int | None
+    camera_id: str
+    vehicle_id: str | None
+    captured_at: str | None
+    attempts: int = Field(description="runs started; more than 1 after a worker was lost")
+    timings_s: dict[str, float | None] | None = Field(description="seconds per pipeline stage")
+    calibration_flag: dict[str, Any] | None = Field(
+        None, description="set when this journey's self-calibration disagrees with the camera's "
+                          "stored one (fx/fy or cx/cy off by more than 3 %): reason and deviations")
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+
+
+class PointGeometry(BaseModel):
+    type: Literal["Point"] = "Point"
+    coordinates: list[float] = Field(description="[lon, lat, alt_m]; alt_m only when uploaded",
+                                     examples=[[8.4183456, 49.0110123, 114.1]])
+
+
+class ObservationOut(BaseModel):
+    frame: str = Field(examples=["000088"])
+    x: float = Field(description="metres right of the camera", examples=[3.1])
+    y: float = Field(description="metres below the camera", examples=[-1.2])
+    z: float = Field(description="metres in front of the camera", examples=[17.4])
+    box: list[float] | None = Field(None, description="the detection [x1, y1, x2, y2], pixels")
+
+
+class SignProperties(BaseModel):
+    model_config = ConfigDict(extra="allow", populate_by_name=True)
+
+    id: str = Field(examples=[f"{JOURNEY_ID_EXAMPLE}:0"])
+    class_: str = Field(alias="class", examples=["stop"])
+    track_id: str | None = Field(None, examples=["0"])
+    journey_id: str | None = Field(None, examples=[JOURNEY_ID_EXAMPLE])
+    std_m: float | None = Field(None, description="1-sigma position uncertainty, metres")
+    reprojection_rms_px: float | None = None
+    observations: list[ObservationOut] | None = Field(
+        None, description="the sign in each observing frame's rectified camera, metres")
+
+
+class SignFeature(BaseModel):
+    type: Literal["Feature"] = "Feature"
+    id: str
+    geometry: PointGeometry
+    properties: SignProperties
+
+
+class SignCollection(BaseModel):
+    type: Literal["FeatureCollection"] = "FeatureCollection"
+    features: list[SignFeature]

@@ -1,0 +1,54 @@
+"""The one configuration object of Signmap, read from ``SIGNMAP_*`` environment variables."""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from app.fusion.config import FusionConfig
+from app.pipeline.config import PipelineConfig
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="SIGNMAP_", env_nested_delimiter="__")
+
+    data_dir: Path = Path("./signmap-data")
+    database_url: str | None = Field(None, description="default: SQLite file under data_dir")
+    broker_url: str | None = Field(None, description="default: none, an in-process worker runs jobs")
+    admin_key: str | None = None
+    max_upload_mb: int = 2048
+    log_level: str = "INFO"
+    # Admin dashboard (docs/service.md, "Dashboard").
+    map_tile_url: str = Field(
+        "https://tile.openstreetmap.org/{z}/{x}/{y}.png",
+        description="base map tiles of the dashboard; without them signs show on a plain background")
+    admin_session_max_age_s: int = Field(12 * 3600, description="dashboard sign-in lifetime")
+
+    # Jobs (see docs/service.md, "Jobs and recovery").
+    embedded_worker: bool = Field(
+        True, description="without a broker, run jobs in the API process; off = uploads stay queued")
+    celery_queue: str = Field("signmap", description="Celery queue the API sends journeys to")
+    heartbeat_s: float = Field(10.0, description="how often a running job stamps its heartbeat")
+    stale_after_s: float = Field(
+        120.0, description="a running job whose heartbeat is older than this is requeued")
+    max_attempts: int = Field(3, description="runs of one journey before it is marked failed")
+    broker_visibility_timeout_s: int = Field(
+        6 * 3600, description="Redis redelivers an unacknowledged job after this; longer than a job")
+    pipeline: PipelineConfig = PipelineConfig()
+
+    # Map fusion (see docs/service.md, "Map fusion").
+    fusion: FusionConfig = FusionConfig()
+    fusion_region_margin_m: float = Field(
+        100.0, description="a journey re-fuses the box of its signs and track grown by this")
+    calibration_flag_rel: float = Field(
+        0.03, description="flag a self-calibration whose fx/fy (relative) or cx/cy (relative to "
+                          "the image size) differ more than this from the camera's stored one")
+
+    @cached_property
+    def effective_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'signmap.db').resolve()}"

@@ -1,0 +1,151 @@
+"""Accuracy metrics of one run against a synthetic journey's truth (``truth.json`` as a dict).
+
+Frames: ``truth_enu`` is the synthetic world's ENU frame (origin ``truth["origin"]``); a pipeline
+result lives in its own ENU frame at the journey's first (noisy) GPS fix, so trajectories are
+carried over through WGS84 before they are compared.
+"""
+
+from __future__ import annotations
+
+import resource
+import warnings
+
+import numpy as np
+
+from app.pipeline.alignment import umeyama
+from app.pipeline.geodesy import frame_at
+from app.pipeline.types import JourneyResult
+from bench.evaluate import calibration_errors_pct, sign_errors
+
+ATE_SNIPPET_FRAMES = 5
+
+
+def truth_frame(truth: dict):
+    o = truth["origin"]
+    return frame_at(o["lat"], o["lon"], o["alt_m"])
+
+
+def truth_centres_enu(truth: dict) -> dict[str, np.ndarray]:
+    """Frame id -> true camera centre (3,) in truth ENU metres."""
+    return {f["frame"]: np.asarray(f["T_world_cam"], dtype=float)[:3, 3] for f in truth["frames"]}
+
+
+def result_to_truth_enu(result: JourneyResult, xyz_enu: np.ndarray, truth: dict) -> np.ndarray:
+    """(M,3) points of ``result``'s ENU frame -> (M,3) in truth ENU."""
+    if len(xyz_enu) == 0:
+        return np.zeros((0, 3))
+    lat0, lon0, alt0 = result.origin_lat_lon_alt
+    lat, lon, alt = frame_at(lat0, lon0, alt0).to_geodetic(xyz_enu)
+    return truth_frame(truth).to_local(lat, lon, alt)
+
+
+def aligned_rmse_m(xyz_est: np.ndarray, xyz_true: np.ndarray) -> float:
+    """RMSE (m) of (M,3) estimated positions after the least-squares similarity onto the truth.
+
+    Points that fix no rotation (a straight snippet) fall back to a rigid fit: the rotation about
+    the line then moves no point, so the error is the same.
+    """
+    try:
+        sim = umeyama(xyz_est, xyz_true)
+    except ValueError:
+        with warnings.catch_warnings():  # SciPy warns that the roll is undetermined: known
+            warnings.simplefilter("ignore", UserWarning)
+            sim = umeyama(xyz_est, xyz_true, with_scale=False)
+    return float(np.sqrt(np.mean(np.sum((sim.apply(xyz_est) - xyz_true) ** 2, axis=1))))
+
+
+def snippet_rmse_m(frame_idx: np.ndarray, xyz_est: np.ndarray, xyz_true: np.ndarray,
+                   length: int = ATE_SNIPPET_FRAMES) -> np.ndarray:
+    """Aligned RMSE of every run of ``length`` consecutive posed frames (ATE-5 of Zhou et al.
+    2017).
+
+    ``frame_idx`` (M,) are the journey frame indices of the rows. The pipeline may pose every n-th
+    frame only: a snippet is ``length`` consecutive rows whose frame indices advance by the usual
+    step (the median one), so it never spans a gap or the seam of two reconstructed windows.
+    """
+    steps = np.diff(frame_idx)
+    if not np.any(steps > 0):
+        return np.zeros(0)
+    step = np.median(steps[steps > 0])
+    out = []
+    for start in range(len(frame_idx) - length + 1):
+        if np.all(steps[start:start + length - 1] == step):
+            out.append(aligned_rmse_m(xyz_est[start:start + length],
+                                      xyz_true[start:start + length]))
+    return np.asarray(out)
+
+
+def trajectory_metrics(result: JourneyResult, truth: dict) -> dict[str, float]:
+    """ATE of the estimated camera centres: ``ate_gps_m`` as georeferenced by the run (no further
+    alignment), ``ate_full_m`` after one similarity onto the truth (Horn), ``ate5_mean_m`` /
+    ``ate5_std_m`` over 5-frame snippets, ``n_posed`` frames with a pose."""
+    centres = truth_centres_enu(truth)
+    ids = [f for f in result.trajectory_frame_ids if f in centres]
+    nan = float("nan")
+    if len(ids) < 3:
+        return {"n_posed": len(ids), "ate_gps_m": nan, "ate_full_m": nan, "ate5_mean_m": nan,
+                "ate5_std_m": nan}
+    keep = np.array([f in centres for f in result.trajectory_frame_ids])
+    xyz_est = result_to_truth_enu(result, np.asarray(result.trajectory_enu)[keep], truth)
+    xyz_true = np.array([centres[f] for f in ids])
+    order = {f["frame"]: i for i, f in enumerate(truth["frames"])}
+    snippets = snippet_rmse_m(np.array([order[f] for f in ids]), xyz_est, xyz_true)
+    return {
+        "n_posed": len(set(ids)),
+        "ate_gps_m": float(np.sqrt(np.mean(np.sum((xyz_est - xyz_true) ** 2, axis=1)))),
+        "ate_full_m": aligned_rmse_m(xyz_est, xyz_true),
+        "ate5_mean_m": float(snippets.mean()) if len(snippets) else nan,
+        "ate5_std_m": float(snippets.std()) if len(snippets) else nan,
+    }
+
+
+def mappable_signs(truth: dict, min_frames: int) -> int:
+    """True signs detected in at least ``min_frames`` frames: those the pipeline may place."""
+    return sum(len({o["frame"] for o in s["observations"]}) >= min_frames for s in truth["signs"])
+
+
+def sign_summary(errors: dict[str, dict[str, float]]) -> dict[str, float]:
+    """Mean and median relative / absolute error (m) over the signs of ``sign_errors``."""
+    rel = np.array([e["rel_m"] for e in errors.values()], dtype=float)
+    abs_m = np.array([e["abs_m"] for e in errors.values()], dtype=float)
+    rel = rel[np.isfinite(rel)]
+
+    def stat(fn, a):
+        return float(fn(a)) if len(a) else float("nan")
+    return {"n_signs": len(errors), "rel_mean_m": stat(np.mean, rel),
+            "rel_median_m": stat(np.median, rel), "abs_mean_m": stat(np.mean, abs_m),
+            "abs_median_m": stat(np.median, abs_m)}
+
+
+def calibration_metrics(result: JourneyResult, truth: dict) -> dict:
+    cal = result.calibration
+    stage1 = cal.stage1.params() if cal.stage1 is not None else None
+    return {"source": cal.source, "final": cal.camera.params(),
+            "errors_pct": calibration_errors_pct(cal.camera.params(), truth),
+            "stage1": stage1,
+            "stage1_errors_pct": calibration_errors_pct(stage1, truth) if stage1 else None,
+            "reprojection_error_px": float(cal.reprojection_error_px)}
+
+
+def evaluate_result(result: JourneyResult, truth: dict) -> dict:
+    """Calibration, trajectory and sign metrics of one run (JSON-ready)."""
+    errors = sign_errors(result, truth)
+    return {"calibration": calibration_metrics(result, truth),
+            "ate": trajectory_metrics(result, truth),
+            "signs": sign_summary(errors),
+            "sign_errors": errors,
+            "rejected": {r.track_id: r.reason for r in result.rejected}}
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process and its waited-for children: unlike wall time, it
+    hardly depends on what else the machine is running."""
+    own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def peak_rss_mb() -> dict[str, float]:
+    """Peak resident memory (MB) of this process and of its largest waited-for child."""
+    kb = 1024.0  # Linux reports ru_maxrss in KiB
+    return {"self_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / kb,
+            "children_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / kb}

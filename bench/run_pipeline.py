@@ -1,0 +1,100 @@
+"""Run one variant (ours / ground-truth camera / naive) on one journey bundle, in a fresh child.
+
+A fresh spawned process per run isolates a COLMAP abort and makes its peak memory its own.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from app.pipeline.bundle import read_bundle
+from app.pipeline.config import PipelineConfig
+from app.pipeline.types import CameraModel, Journey, JourneyResult, PipelineError
+
+
+@dataclass(frozen=True)
+class RunTask:
+    label: str  # for progress lines, e.g. "loop-300/ours"
+    bundle: Path
+    workdir: Path
+    config: dict  # PipelineConfig.model_dump(): rebuilt in the child, with its defaults
+    naive: bool = False
+    known_camera: CameraModel | None = None  # with config.reuse_known_calibration: skip calibrating
+    max_frames: int | None = None  # run on this many first frames only
+
+
+@dataclass
+class RunOutput:
+    label: str
+    result: JourneyResult | None
+    error: str | None
+    n_frames: int
+    wall_s: float  # bundle reading + pipeline
+    timings_s: dict[str, float]  # per stage, with "read" (bundle extraction) first
+    peak_rss_mb: dict[str, float]
+    cpu_s: float = float("nan")  # CPU time of the run and its children
+
+    @property
+    def fps(self) -> float:
+        return self.n_frames / self.wall_s if self.wall_s > 0 else float("nan")
+
+
+def prefix(journey: Journey, n_frames: int) -> Journey:
+    """The journey's first ``n_frames`` frames, their GPS and detections."""
+    ids = set(journey.frame_ids[:n_frames])
+    return replace(journey, frames=journey.frames[:n_frames], lat_deg=journey.lat_deg[:n_frames],
+                   lon_deg=journey.lon_deg[:n_frames], alt_m=journey.alt_m[:n_frames],
+                   detections=[d for d in journey.detections if d.frame_id in ids])
+
+
+def _progress(label: str):
+    t0 = time.perf_counter()
+
+    def progress(stage: str, fraction: float, message: str = "") -> None:
+        print(f"  [{time.perf_counter() - t0:7.1f}s] {label}: {stage} {message}",
+              file=sys.stderr, flush=True)
+    return progress
+
+
+def _run_in_child(task: RunTask) -> RunOutput:
+    from bench.metrics import cpu_seconds, peak_rss_mb
+    from bench.naive import naive_journey
+    from app.pipeline.run import process_journey
+
+    t0 = time.perf_counter()
+    journey = read_bundle(task.bundle, task.workdir / "bundle")
+    if task.max_frames is not None:
+        journey = prefix(journey, task.max_frames)
+    read_s = time.perf_counter() - t0
+    progress = _progress(task.label)
+    config = PipelineConfig(**task.config)
+    result, error = None, None
+    try:
+        if task.naive:
+            result = naive_journey(journey, config, task.workdir / "naive", progress=progress)
+        else:
+            result = process_journey(journey, config, task.workdir / "work",
+                                     known_camera=task.known_camera, progress=progress)
+    except PipelineError as exc:
+        error = str(exc)
+    wall_s = time.perf_counter() - t0
+    timings = {"read": round(read_s, 3), **(result.timings_s if result else {})}
+    return RunOutput(task.label, result, error, len(journey.frames), wall_s, timings,
+                     peak_rss_mb(), cpu_seconds())
+
+
+def run_isolated(task: RunTask) -> RunOutput:
+    """Run ``task`` in a fresh spawned process; a crash of that process becomes ``error``."""
+    ctx = multiprocessing.get_context("spawn")
+    t0 = time.perf_counter()
+    with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        try:
+            return pool.submit(_run_in_child, task).result()
+        except cf.process.BrokenProcessPool:
+            return RunOutput(task.label, None, "the process died (COLMAP abort?)", 0,
+                             time.perf_counter() - t0, {}, {})

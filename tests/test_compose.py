@@ -1,0 +1,86 @@
+"""docker-compose.yml and the Dockerfile, checked statically (no Docker here): the four services,
+their environment, shared data volume and healthchecks, against the code they point at."""
+
+from __future__ import annotations
+
+import re
+from urllib.parse import urlparse
+
+import pytest
+
+from tests.conftest import REPO
+
+yaml = pytest.importorskip("yaml")
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    return yaml.safe_load((REPO / "docker-compose.yml").read_text())
+
+
+def _env(service: dict) -> dict[str, str]:
+    return {k: str(v) for k, v in service["environment"].items()}
+
+
+def test_services_and_healthchecks(compose):
+    services = compose["services"]
+    assert set(services) == {"api", "worker", "postgres", "redis"}
+    for name, service in services.items():
+        check = service["healthcheck"]
+        assert check["test"][0] in ("CMD", "CMD-SHELL") and len(check["test"]) > 1, name
+        assert check["retries"] >= 3, name
+    api_deps, worker_deps = services["api"]["depends_on"], services["worker"]["depends_on"]
+    assert {k: v["condition"] for k, v in api_deps.items()} == {
+        "postgres": "service_healthy", "redis": "service_healthy"}
+    assert worker_deps["api"]["condition"] == "service_healthy"  # migrations ran
+    assert services["worker"]["command"] == ["signmap", "worker"]
+    assert "signmap db upgrade" in " ".join(services["api"]["command"])
+
+
+def test_environment_points_at_the_compose_services(compose):
+    services = compose["services"]
+    api, worker = _env(services["api"]), _env(services["worker"])
+    assert api == worker
+    db = urlparse(api["SIGNMAP_DATABASE_URL"])
+    pg = {k: str(v) for k, v in services["postgres"]["environment"].items()}
+    assert db.scheme == "postgresql+psycopg" and db.hostname == "postgres"
+    assert (db.username, db.path.lstrip("/")) == (pg["POSTGRES_USER"], pg["POSTGRES_DB"])
+    assert db.password == pg["POSTGRES_PASSWORD"] == "${POSTGRES_PASSWORD:-signmap}"
+    broker = urlparse(api["SIGNMAP_BROKER_URL"])
+    assert (broker.scheme, broker.hostname) == ("redis", "redis")
+    assert api["SIGNMAP_ADMIN_KEY"].startswith("${SIGNMAP_ADMIN_KEY:?")  # no default admin key
+    from app.settings import Settings
+
+    fields = set(Settings.model_fields)
+    for name in api:
+        assert name.startswith("SIGNMAP_") and name[8:].lower() in fields, name
+
+
+def test_api_and_worker_share_the_data_volume(compose):
+    services = compose["services"]
+    data_dir = _env(services["api"])["SIGNMAP_DATA_DIR"]
+    mounts = {name: services[name]["volumes"] for name in ("api", "worker")}
+    assert mounts["api"] == mounts["worker"] == [f"data:{data_dir}"]
+    assert set(compose["volumes"]) == {"pgdata", "redisdata", "data"}
+
+
+def test_healthchecks_probe_what_the_code_provides(compose):
+    from app.service.app import create_app
+    from app.settings import Settings
+    from worker.tasks import ALIVE_FILE
+
+    api_check = " ".join(compose["services"]["api"]["healthcheck"]["test"])
+    path = re.search(r"http://127\.0\.0\.1:8000(/[\w/]+)", api_check).group(1)
+    assert path in create_app(Settings(embedded_worker=False)).openapi()["paths"]
+    assert "--port 8000" in " ".join(compose["services"]["api"]["command"])
+    worker_check = " ".join(compose["services"]["worker"]["healthcheck"]["test"])
+    assert f"'/tmp/{ALIVE_FILE.name}'" in worker_check  # the image's temp dir is /tmp
+
+
+def test_dockerfile_installs_the_project_with_its_migrations():
+    dockerfile = (REPO / "Dockerfile").read_text()
+    for needed in ("COPY app ./app", "COPY worker ./worker", "COPY migrations ./migrations",
+                   "alembic.ini", "pip install -e .", "USER signmap"):
+        assert needed in dockerfile, needed
+    ignored = (REPO / ".dockerignore").read_text().split()
+    assert ".venv" in ignored and ".git" in ignored and "migrations" not in ignored

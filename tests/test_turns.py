@@ -1,0 +1,152 @@
+import numpy as np
+import pytest
+
+from app.pipeline.turns import TurnWindow, find_turns, total_rotation_deg
+
+
+def _leg(start, heading_deg: float, length_m: float, step_m: float = 1.0) -> np.ndarray:
+    """Points every step_m after ``start`` (excluded) along a straight heading (0 = east)."""
+    s = np.arange(step_m, length_m + 1e-9, step_m)
+    h = np.radians(heading_deg)
+    return np.asarray(start, float) + np.column_stack([s * np.cos(h), s * np.sin(h)])
+
+
+def _polyline(headings_deg, lengths_m, step_m: float = 1.0) -> np.ndarray:
+    pts = [np.zeros((1, 2))]
+    for h, length in zip(headings_deg, lengths_m):
+        pts.append(_leg(pts[-1][-1], h, length, step_m))
+    return np.vstack(pts)
+
+
+def test_sharp_left_corner_exact_window():
+    xy = _polyline([0, 90], [100, 100])  # frame 100 is the corner, one frame per metre
+    turns = find_turns(xy)
+    assert len(turns) == 1
+    t = turns[0]
+    assert (t.start, t.end, t.vertex) == (60, 141, 100)
+    assert t.angle_deg == pytest.approx(90.0, abs=1e-9)
+    assert t.rotation_deg == pytest.approx(90.0, abs=1e-9)
+    assert total_rotation_deg(xy) == pytest.approx(90.0, abs=1e-9)
+
+
+def test_right_corner_is_negative_and_window_follows_window_m():
+    xy = _polyline([30, -60], [80, 80], step_m=0.5)  # corner at frame 160
+    (t,) = find_turns(xy, window_m=20.0)
+    assert t.angle_deg == pytest.approx(-90.0, abs=1e-9)
+    assert (t.start, t.end, t.vertex) == (120, 201, 160)
+
+
+def test_smooth_curve_is_one_turn_centred_on_the_arc():
+    r_m, step = 15.0, 0.5
+    straight_in = _leg((-60.0, 0.0), 0.0, 60.0, step)
+    theta = np.arange(step / r_m, np.pi / 2 + 1e-9, step / r_m)
+    arc = np.column_stack([r_m * np.sin(theta), r_m - r_m * np.cos(theta)])
+    straight_out = _leg(arc[-1], 90.0, 60.0, step)
+    xy = np.vstack([[(-60.0, 0.0)], straight_in, arc, straight_out])
+    arc_first, arc_last = len(straight_in) + 1, len(straight_in) + len(arc)
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(90.0, abs=1.0)
+    mid = (arc_first + arc_last) / 2
+    assert abs(t.vertex - mid) * step <= 3.0  # the apex, within a few metres of track
+    assert t.start < arc_first and t.end > arc_last
+    assert total_rotation_deg(xy) == pytest.approx(90.0, abs=1.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noisy_straight_track_has_no_turns(seed):
+    rng = np.random.default_rng(seed)
+    xy = _polyline([20], [1000]) + rng.normal(scale=0.5, size=(1001, 2))
+    assert find_turns(xy) == []
+    # Noise well inside the tolerance leaves the track straight; noise near it (0.5 m, 4 sigma =
+    # tolerance) may leave small wiggles in the rotation sum, but never a turn.
+    quiet = _polyline([20], [1000]) + rng.normal(scale=0.3, size=(1001, 2))
+    assert total_rotation_deg(quiet) < 5.0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_noisy_corner_is_found(seed):
+    rng = np.random.default_rng(seed)
+    xy = _polyline([0, 90], [150, 150]) + rng.normal(scale=0.5, size=(301, 2))
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(90.0, abs=5.0)
+    assert abs(t.vertex - 150) <= 3
+    assert abs(t.start - 110) <= 3 and abs(t.end - 191) <= 3
+
+
+def _with_stop(xy: np.ndarray, at: int, frames: int, jitter_m: float, seed: int = 0) -> np.ndarray:
+    """The car stands still at frame ``at`` for ``frames`` more frames (GPS jitter optional)."""
+    rng = np.random.default_rng(seed)
+    stop = xy[at] + rng.normal(scale=jitter_m, size=(frames, 2)) if jitter_m else \
+        np.repeat(xy[at:at + 1], frames, axis=0)
+    return np.vstack([xy[:at + 1], stop, xy[at + 1:]])
+
+
+def test_car_stopped_at_the_corner():
+    xy = _with_stop(_polyline([0, 90], [100, 100]), at=100, frames=50, jitter_m=0.0)
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(90.0, abs=1e-9)
+    assert 100 <= t.vertex <= 150  # any frame of the stop is the corner
+    assert (t.start, t.end) == (60, 191)  # standing adds no track length
+
+
+@pytest.mark.parametrize("jitter_m", [0.0, 0.5, 1.0])
+def test_car_stopped_on_a_straight_gives_no_turn(jitter_m):
+    xy = _with_stop(_polyline([45], [300]), at=150, frames=200, jitter_m=jitter_m)
+    assert find_turns(xy) == []
+    assert total_rotation_deg(xy) < 10.0
+
+
+@pytest.mark.parametrize("jitter_m", [0.5, 1.0])
+def test_jitter_while_stopped_at_the_corner(jitter_m):
+    xy = _with_stop(_polyline([0, 90], [100, 100]), at=100, frames=200, jitter_m=jitter_m, seed=3)
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(90.0, abs=5.0)
+    assert 100 <= t.vertex <= 300
+    assert abs(t.start - 60) <= 3 and abs(t.end - 341) <= 3
+
+
+def test_turns_sorted_by_size_and_nearby_turns_merged():
+    # 45 deg left at 200 m, then 120 deg right at 500 m: separate, biggest first.
+    xy = _polyline([0, 45, -75], [200, 300, 200])
+    turns = find_turns(xy)
+    assert [round(t.angle_deg, 6) for t in turns] == [-120.0, 45.0]
+    assert [t.vertex for t in turns] == [500, 200]
+    # Two left corners 50 m apart: their 40 m windows overlap and merge, angles summed.
+    xy = _polyline([0, 90, 180], [100, 50, 100])
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(180.0, abs=1e-9)
+    assert (t.start, t.end) == (60, 191)
+    assert t.vertex in (100, 150)
+    # A right-left pair merges too: net heading 0, but 180 deg of rotation inside.
+    xy = _polyline([0, -90, 0], [100, 50, 100])
+    (t,) = find_turns(xy)
+    assert t.angle_deg == pytest.approx(0.0, abs=1e-9)
+    assert t.rotation_deg == pytest.approx(180.0, abs=1e-9)
+    assert (t.start, t.end) == (60, 191)
+
+
+def test_small_bends_are_not_turns_but_count_as_rotation():
+    xy = _polyline([0, 20, 0, -20, 0], [100] * 5)
+    assert find_turns(xy) == []
+    assert total_rotation_deg(xy) == pytest.approx(80.0, abs=1e-9)
+    assert [t.angle_deg for t in find_turns(xy, min_angle_deg=15.0)] == pytest.approx(
+        [20.0, -20.0, -20.0, 20.0], abs=1e-9)
+
+
+def test_zigzag_rotation_and_closed_loop():
+    xy = _polyline([0, 90, 0], [100, 100, 100])
+    assert total_rotation_deg(xy) == pytest.approx(180.0, abs=1e-9)
+    assert [t.angle_deg for t in find_turns(xy)] == pytest.approx([90.0, -90.0], abs=1e-9)
+    # A square block driven around once, starting mid-side: four left turns.
+    loop = _polyline([0, 90, 180, 270, 0], [50, 100, 100, 100, 50])
+    turns = find_turns(loop)
+    assert [t.angle_deg for t in turns] == pytest.approx([90.0] * 4, abs=1e-9)
+    assert sorted(t.vertex for t in turns) == [50, 150, 250, 350]
+
+
+def test_degenerate_inputs():
+    assert find_turns(np.zeros((0, 2))) == []
+    assert find_turns(np.array([[1.0, 2.0]])) == []
+    assert find_turns(np.ones((20, 2))) == []
+    assert total_rotation_deg(np.ones((20, 2))) == 0.0
+    assert isinstance(find_turns(_polyline([0, 90], [50, 50]))[0], TurnWindow)
