@@ -43,11 +43,10 @@ def _unavailable(what: str, exc: Exception) -> None:
     pytest.skip(message)
 
 
-@pytest.fixture(scope="session")
-def pg_url() -> Iterator[str]:
-    """A fresh PostgreSQL database for this session, migrated with Alembic, dropped at the end."""
+@contextmanager
+def _pg_database(name: str) -> Iterator[str]:
+    """A new PostgreSQL database ``name``, migrated with Alembic, dropped at the end."""
     admin = create_engine(PG_URL, isolation_level="AUTOCOMMIT")
-    name = f"signmap_test_{SESSION_TAG}"
     try:
         with admin.connect() as conn:
             conn.execute(text(f'CREATE DATABASE "{name}"'))
@@ -62,6 +61,22 @@ def pg_url() -> Iterator[str]:
         with admin.connect() as conn:
             conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
         admin.dispose()
+
+
+@pytest.fixture(scope="session")
+def pg_url() -> Iterator[str]:
+    """A PostgreSQL database shared by the session's tests that do not care what else is in it."""
+    with _pg_database(f"signmap_test_{SESSION_TAG}") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def own_pg_url(request) -> Iterator[str]:
+    """A PostgreSQL database of the test module's own, for tests that assert what the whole map
+    holds (the shared one has whatever the session's other tests put at the same place)."""
+    module = request.module.__name__.rsplit(".", 1)[-1]
+    with _pg_database(f"signmap_test_{SESSION_TAG}_{module}") as url:
+        yield url
 
 
 @pytest.fixture(scope="session")

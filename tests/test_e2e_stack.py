@@ -28,10 +28,10 @@ def _finished(body: dict) -> bool:
 
 
 @pytest.fixture(scope="module")
-def real_stack(tmp_path_factory, pg_url, redis_url) -> Stack:
+def real_stack(tmp_path_factory, own_pg_url, redis_url) -> Stack:
     # Quick heartbeats so that a killed worker's job is recovered within seconds.
     return Stack("postgres", make_settings(tmp_path_factory.mktemp("stack") / "data",
-                                           database_url=pg_url, broker_url=redis_url,
+                                           database_url=own_pg_url, broker_url=redis_url,
                                            heartbeat_s=1.0, stale_after_s=10.0))
 
 

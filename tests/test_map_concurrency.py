@@ -30,8 +30,8 @@ def _wait_ready(worker: CeleryWorker, timeout_s: float = 60) -> None:
 
 
 def test_two_workers_fusing_one_place_at_once_make_one_map_sign_per_real_sign(
-        tmp_path, pg_url, redis_url):
-    stack = Stack("postgres", make_settings(tmp_path / "data", database_url=pg_url,
+        tmp_path, own_pg_url, redis_url):
+    stack = Stack("postgres", make_settings(tmp_path / "data", database_url=own_pg_url,
                                             broker_url=redis_url))
     (tmp_path / "b.zip").write_bytes(bf_zip())
     journey_data = read_bundle(tmp_path / "b.zip", tmp_path / "x", decode_images=False)
