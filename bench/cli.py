@@ -1,4 +1,5 @@
-"""``signmap bench [--quick]`` and ``signmap bench sensitivity``: argument parsing only."""
+"""``signmap bench [--quick]``, ``signmap bench sensitivity`` and ``signmap bench fusion``: argument
+parsing only."""
 
 from __future__ import annotations
 
@@ -40,8 +41,18 @@ def run_sensitivity_command(args) -> int:
     return 0
 
 
+def run_fusion_command(args) -> int:
+    from bench.fusion import run_fusion
+
+    md, js = run_fusion(quick=args.quick, out_dir=args.out, cache_dir=args.cache)
+    print(md.read_text())
+    print(f"wrote {md} and {js}")
+    return 0
+
+
 def add_parsers(sub) -> None:
-    """Add ``bench`` (with its ``sensitivity`` subcommand) to the ``signmap`` subparsers."""
+    """Add ``bench`` (with its ``sensitivity`` and ``fusion`` subcommands) to the ``signmap``
+    subparsers."""
     p = sub.add_parser("bench", help="benchmark accuracy and speed on synthetic journeys",
                        description="Runs the suite of synthetic journeys with our pipeline and "
                        "its baselines; prints markdown tables, writes <date>.md/.json and plots.")
@@ -52,6 +63,9 @@ def add_parsers(sub) -> None:
     _common(s, inherit=True)
     s.add_argument("--steps", type=int, default=5, help="error steps from -15 %% to +15 %%")
     s.set_defaults(func=run_sensitivity_command)
+    f = bench_sub.add_parser("fusion", help="map error vs number of journeys fused (issue 5)")
+    _common(f, inherit=True)
+    f.set_defaults(func=run_fusion_command)
 
 
 def main(argv: list[str] | None = None) -> int:

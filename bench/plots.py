@@ -1,5 +1,5 @@
-"""PNG figures of a bench run (matplotlib, Agg): a journey's trajectories and signs from above, and
-the sensitivity study (like the paper's Fig. 3)."""
+"""PNG figures of a bench run (matplotlib, Agg): a journey's trajectories and signs from above, the
+sensitivity study (like the paper's Fig. 3) and the map error against the number of journeys."""
 
 from __future__ import annotations
 
@@ -81,6 +81,35 @@ def plot_sensitivity(rows: list[dict], groups: list[str], png: Path) -> Path:
         ax.set_title(f"error in {group}", fontsize=10)
         ax.grid(True, lw=0.3)
     axes[-1, 0].set_xlabel("parameter error (%)")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
+
+
+def plot_fusion(rows: list[dict], bar_m: float, bar_k: int, png: Path) -> Path:
+    """Median and mean absolute error of the fused map vs the number of journeys, the bar (a line
+    at ``bar_m``, marked at ``bar_k`` journeys) and the single-journey mean. ``rows``: dicts with
+    ``k``, ``abs_median_m``, ``abs_mean_m``, ``single_abs_mean_m``."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    k = [r["k"] for r in rows]
+    ax.plot(k, [_nan(r["abs_median_m"]) for r in rows], "o-", color="tab:red",
+            label="fused map: median")
+    ax.plot(k, [_nan(r["abs_mean_m"]) for r in rows], "s--", color="tab:orange",
+            label="fused map: mean")
+    ax.plot(k, [_nan(r["single_abs_mean_m"]) for r in rows], "^:", color="tab:blue",
+            label="single journey: mean (same journeys)")
+    ax.axhline(bar_m, color="k", lw=1.0, ls="-.", label=f"bar: median {bar_m} m")
+    if bar_k <= max(k, default=0):  # a quick run stops short of the bar's journey count
+        ax.axvline(bar_k, color="0.6", lw=0.8, ls=":")
+    ax.set_xticks(k)
+    ax.set_xlabel("journeys fused")
+    ax.set_ylabel("absolute sign error (m, ENU 3-D)")
+    ax.set_ylim(bottom=0.0)
+    ax.set_title("Map error vs number of journeys")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)
