@@ -64,13 +64,16 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0) ->
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
     weakest-determined group and must not absorb the large stage-1 focal error), then everything;
-    observations with large errors are dropped in between.
+    observations with large errors are dropped in between and after: the robust loss leaves a few
+    points far off (errors of 1e100 px were seen) that would swamp the mean reprojection error by
+    which candidate windows are judged, and so reject a right calibration.
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0)
+    _filter_observations(pycolmap, rec, filter_max_error_px)
 
 
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:

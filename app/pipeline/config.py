@@ -31,6 +31,8 @@ class PipelineConfig(BaseModel):
     sift_first_octave: int = Field(-1, description="-1 upsamples the image: more small features, slower")
     match_overlap: int = Field(8, description="sequential matching: temporal neighbours per frame")
     colmap_threads: int = Field(2, description="threads COLMAP may use (0 = all)")
+    ba_max_refinements: int = Field(
+        1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 
     # Ego-motion: reconstruct only windows around signs.
     sign_window_margin_frames: int = Field(15, description="frames added before/after a sign track")

@@ -78,7 +78,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
     features = colmap_sfm.FeatureOptions(config.sift_max_features, config.sift_max_image_size,
                                          config.sift_first_octave, config.match_overlap,
-                                         config.colmap_threads)
+                                         config.colmap_threads, config.ba_max_refinements)
     needed = sorted({i for a, b in ego_windows for i in range(a, b, config.ego_frame_step)}
                     | {i for a, b in calib_windows for i in range(a, b)})
     sfm_dir = workdir / "sfm"
