@@ -1,4 +1,4 @@
-"""``python -m bench [--quick] | sensitivity``: the same as ``signmap bench``."""
+"""``python -m bench [--quick] [sensitivity | fusion]``: the same as ``signmap bench``."""
 
 import sys
 

@@ -1,7 +1,8 @@
 """Markdown tables of a bench report (the dict ``bench.runner.run_bench`` writes as JSON).
 
 One function per table, each ``report -> markdown``; ``REPORT_TABLES`` is the order of the report.
-A later table (e.g. multi-journey fusion, issue 5) is one more function appended there.
+A later per-journey table is one more function appended there (multi-journey fusion has its own
+report: ``bench.fusion``).
 """
 
 from __future__ import annotations
