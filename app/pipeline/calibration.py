@@ -66,9 +66,15 @@ def rotation_covered_deg(T_model_cam: np.ndarray) -> float:
     return float(np.degrees(rel.magnitude().max()))
 
 
+# Pixels of real sensors are square to a few per cent. The wrong minima stage 2 falls into from a
+# warped stage-1 reconstruction had fx/fy of 1.13-1.16 (turn-70, 2026-11-23) at reprojection errors
+# (~0.55 px) that pass the error gate: this bound is what rejects them.
+MAX_ASPECT_DEVIATION = 0.08
+
+
 def _implausible(camera: CameraModel) -> str | None:
     w, h = camera.width, camera.height
-    if not (0.8 < camera.fx / camera.fy < 1.25):
+    if abs(camera.fx / camera.fy - 1.0) > MAX_ASPECT_DEVIATION:
         return f"fx/fy = {camera.fx / camera.fy:.2f} is implausible"
     if not (0.1 * w < camera.fx < 10 * w):
         return f"focal length {camera.fx:.0f} px is implausible for a {w} px wide image"
