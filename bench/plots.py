@@ -57,11 +57,7 @@ def plot_journey(name: str, truth: dict, results: dict[str, JourneyResult | None
     ax.set_title(f"{name}: trajectories and signs (truth ENU)")
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return png
+    return _save(fig, png)
 
 
 def plot_sensitivity(rows: list[dict], groups: list[str], png: Path) -> Path:
@@ -81,11 +77,7 @@ def plot_sensitivity(rows: list[dict], groups: list[str], png: Path) -> Path:
         ax.set_title(f"error in {group}", fontsize=10)
         ax.grid(True, lw=0.3)
     axes[-1, 0].set_xlabel("parameter error (%)")
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return png
+    return _save(fig, png)
 
 
 def plot_fusion(rows: list[dict], bar_m: float, bar_k: int, png: Path) -> Path:
@@ -110,6 +102,10 @@ def plot_fusion(rows: list[dict], bar_m: float, bar_k: int, png: Path) -> Path:
     ax.set_title("Map error vs number of journeys")
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=8, loc="best")
+    return _save(fig, png)
+
+
+def _save(fig, png: Path) -> Path:
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)
