@@ -38,3 +38,17 @@ def test_a_wrong_minimum_with_unequal_focal_lengths_is_rejected(fx, fy):
 ])
 def test_a_poor_window_is_rejected_with_its_reason(kwargs, reason):
     assert reason in _judge(_window(TRUE, **kwargs), PipelineConfig())
+
+
+def test_candidate_windows_span_the_turn_first_then_shift_and_stay_inside_the_journey():
+    from app.pipeline.calibration import candidate_windows
+    from app.pipeline.turns import TurnWindow
+
+    cfg = PipelineConfig()
+    turn = TurnWindow(start=0, end=70, vertex=37, angle_deg=99.0, rotation_deg=99.0)
+    windows = candidate_windows([turn], 70, cfg)
+    assert windows[0] == (37 - cfg.calib_window_frames // 2, 37 + cfg.calib_window_frames // 2)
+    assert len(windows) == len(set(windows)) <= cfg.calib_max_candidates
+    assert all(0 <= a < b <= 70 and b - a == cfg.calib_window_frames for a, b in windows)
+    # A journey shorter than a window is mapped whole.
+    assert candidate_windows([turn], 20, cfg) == [(0, 20)]

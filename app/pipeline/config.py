@@ -17,7 +17,9 @@ class PipelineConfig(BaseModel):
     rdp_tolerance_m: float = Field(2.0, description="RDP tolerance on the metric GPS track")
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
-    calib_window_frames: int = Field(30, description="frames per calibration candidate window")
+    calib_window_frames: int = Field(44, description="journey frames a calibration candidate spans")
+    calib_frame_step: int = Field(
+        2, description="map every n-th frame of a calibration window (wider baselines, fewer images)")
     calib_max_candidates: int = Field(5, description="candidate windows tried per journey")
     calib_initial_focal_factor: float = Field(
         0.8, description="first focal guess as a multiple of the image width (dash cams are wide)")

@@ -80,7 +80,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                                          config.sift_first_octave, config.match_overlap,
                                          config.colmap_threads, config.ba_max_refinements)
     needed = sorted({i for a, b in ego_windows for i in range(a, b, config.ego_frame_step)}
-                    | {i for a, b in calib_windows for i in range(a, b)})
+                    | {i for a, b in calib_windows for i in range(a, b, config.calib_frame_step)})
     sfm_dir = workdir / "sfm"
 
     def sfm(requests):
