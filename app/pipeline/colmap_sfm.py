@@ -49,6 +49,10 @@ class WindowRequest:
     camera: CameraModel | None
     calibrate: bool = False
     use_position_priors: bool = False
+    # Two of ``image_names`` to start the reconstruction from (None: COLMAP's choice, which favours
+    # the most matched pair: neighbouring frames whose short forward baseline can fix a wrong
+    # relative pose that bundle adjustment never leaves). Falls back to COLMAP's choice on failure.
+    init_pair: tuple[str, str] | None = None
 
 
 @dataclass
@@ -231,8 +235,25 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     empty = WindowResult([], np.zeros((0, 4, 4)),
                          window.camera or CameraModel(job.width, job.height, 1, 1, 0, 0),
                          n_input=len(window.image_names))
+    models = None
+    if window.init_pair is not None:
+        with pycolmap.Database.open(db_path) as db:
+            ids = {im.name: im.image_id for im in db.read_all_images()}
+        if all(name in ids for name in window.init_pair):
+            options.init_image_id1, options.init_image_id2 = (ids[n] for n in window.init_pair)
+            try:
+                models = pycolmap.incremental_mapping(db_path, job.image_dir, out, options=options)
+            except Exception:
+                models = None
+            if not models or max(r.num_reg_images() for r in models.values()) < 3:
+                log.warning("window %d: no reconstruction from the chosen initial pair %s; "
+                            "letting COLMAP choose", index, window.init_pair)
+                shutil.rmtree(out / "0", ignore_errors=True)
+                options.init_image_id1 = options.init_image_id2 = -1
+                models = None
     try:
-        models = pycolmap.incremental_mapping(db_path, job.image_dir, out, options=options)
+        if models is None:
+            models = pycolmap.incremental_mapping(db_path, job.image_dir, out, options=options)
     except Exception as exc:  # COLMAP raises for windows it cannot initialise
         empty.error = f"mapping failed: {exc}"
         return empty

@@ -67,8 +67,13 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         calib_windows = calibration.candidate_windows(turn_windows, n, config)
         if known_camera is not None and config.reuse_known_calibration:
             calib_windows = []
-        tracks = [t for t in ego_motion.sign_tracks(journey.detections, journey.frame_ids)
-                  if len(t.frame_idx) >= config.min_track_frames]
+        # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
+        margin = config.sign_window_margin_frames
+        tracks = [p for t in ego_motion.sign_tracks(journey.detections, journey.frame_ids)
+                  for p in ego_motion.split_passes(
+                      t, max_gap=2 * margin,
+                      max_frames=max(1, config.ego_max_frames_per_window - 2 * margin))
+                  if len(p.frame_idx) >= config.min_track_frames]
         ego_windows = ego_motion.plan_windows(tracks, n, margin=config.sign_window_margin_frames,
                                               max_frames=config.ego_max_frames_per_window)
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
@@ -122,7 +127,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
     with clock.stage("ego_motion", f"{len(ego_windows)} windows"):
         results = sfm(ego_motion.requests(ego_windows, names, camera, step=config.ego_frame_step,
-                                          position_priors=config.ego_position_priors))
+                                          position_priors=config.ego_position_priors,
+                                          init_gap_frames=config.match_overlap))
         poses = ego_motion.window_poses(ego_windows, results, names)
     if not poses:
         raise PipelineError("ego_motion", "no window around the signs could be reconstructed: "
@@ -139,7 +145,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                             "(the GPS track does not move enough around the signs)")
 
-    with clock.stage("triangulate", f"{len(tracks)} tracks"):
+    with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
         signs, rejected = _triangulate_all(tracks, aligned, xyz_gps, camera, journey, origin,
                                            config)
 
@@ -157,33 +163,66 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
 def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Journey,
                      origin: geodesy.LocalFrame, config: PipelineConfig):
+    """One sign per track id: each pass of a track is triangulated from its own window, the passes
+    that succeed are combined (``_combine``)."""
+    passes: dict[str, list] = {}
+    for track in tracks:
+        passes.setdefault(track.track_id, []).append(
+            _triangulate_pass(track, aligned, xyz_gps, camera, config))
     signs: list[Sign] = []
     rejected: list[RejectedSign] = []
-    for track in tracks:
-        tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
-                                      margin=config.sign_window_margin_frames,
-                                      min_frames=config.short_alignment_min_frames)
-        if tp is None or tp.keep.sum() < 2:
-            rejected.append(RejectedSign(track.track_id, track.cls,
-                                         "its frames were not reconstructed"))
+    for track_id, results in passes.items():
+        cls = next(t.cls for t in tracks if t.track_id == track_id)
+        placed = [r for r in results if not isinstance(r, str)]
+        if not placed:
+            rejected.append(RejectedSign(track_id, cls, "; ".join(dict.fromkeys(results))))
             continue
-        px = undistort_pixels(camera, track.px[tp.keep])
-        try:
-            point = triangulate(tp.T_world_cam, px, camera.K,
-                                min_ray_angle_deg=config.min_ray_angle_deg,
-                                max_rms_px=config.max_reprojection_rms_px)
-        except TriangulationError as exc:
-            rejected.append(RejectedSign(track.track_id, track.cls, str(exc)))
+        xyz, cov, rms_px = _combine(placed)
+        std_m = float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))
+        if std_m > config.max_sign_std_m:
+            rejected.append(RejectedSign(track_id, cls,
+                                         f"uncertainty {std_m:.2f} m > {config.max_sign_std_m} m"))
             continue
-        if point.std_m > config.max_sign_std_m:
-            rejected.append(RejectedSign(track.track_id, track.cls,
-                                         f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m"))
-            continue
-        lat, lon, alt = origin.to_geodetic(point.xyz_world[None, :])
-        frame_ids = [journey.frames[i].frame_id for i in track.frame_idx[tp.keep]]
+        T = np.concatenate([r[1] for r in placed])
+        frame_ids = [journey.frames[i].frame_id for r in placed for i in r[2]]
+        p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
+        lat, lon, alt = origin.to_geodetic(xyz[None, :])
         signs.append(Sign(
-            track.track_id, track.cls, point.xyz_world, float(lat[0]), float(lon[0]),
-            float(alt[0]) if journey.has_altitude else None, point.std_m, point.rms_px,
-            [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, point.p_cam)],
+            track_id, cls, xyz, float(lat[0]), float(lon[0]),
+            float(alt[0]) if journey.has_altitude else None, std_m, rms_px,
+            [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, p_cam)],
         ))
     return signs, rejected
+
+
+def _triangulate_pass(track, aligned, xyz_gps, camera: CameraModel, config: PipelineConfig):
+    """(point, T_world_cam, frame_idx) of one pass, or the reason it cannot be placed."""
+    tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
+                                  margin=config.sign_window_margin_frames,
+                                  min_frames=config.short_alignment_min_frames)
+    if tp is None or tp.keep.sum() < 2:
+        return "its frames were not reconstructed"
+    px = undistort_pixels(camera, track.px[tp.keep])
+    try:
+        point = triangulate(tp.T_world_cam, px, camera.K,
+                            min_ray_angle_deg=config.min_ray_angle_deg,
+                            max_rms_px=config.max_reprojection_rms_px)
+    except TriangulationError as exc:
+        return str(exc)
+    if point.std_m > config.max_sign_std_m:
+        return f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m"
+    return point, tp.T_world_cam, track.frame_idx[tp.keep]
+
+
+def _combine(placed) -> tuple[np.ndarray, np.ndarray, float]:
+    """(xyz, cov, rms_px) of one sign from its passes' triangulations: the inverse-covariance
+    weighted mean (each pass comes from its own, independently aligned window)."""
+    if len(placed) == 1:
+        point = placed[0][0]
+        return point.xyz_world, point.cov_world, point.rms_px
+    info = [np.linalg.inv(r[0].cov_world) for r in placed]
+    cov = np.linalg.inv(sum(info))
+    xyz = cov @ sum(w @ r[0].xyz_world for w, r in zip(info, placed))
+    n = [len(r[2]) for r in placed]
+    rms_px = float(np.sqrt(sum(k * r[0].rms_px**2 for k, r in zip(n, placed)) / sum(n)))
+    return xyz, 0.5 * (cov + cov.T), rms_px
