@@ -89,12 +89,22 @@ def _point(xyz, sigma, rms=0.5) -> TriangulatedPoint:
                              float(max(sigma)), rms, np.zeros((2, 3)))
 
 
-def test_passes_combine_by_their_uncertainty():
-    a = (_point([0.0, 0.0, 0.0], [0.1, 0.1, 0.1]), np.zeros((4, 4, 4)), np.arange(4))
-    b = (_point([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]), np.zeros((2, 4, 4)), np.arange(2))
+def test_passes_combine_into_a_weighted_mean_between_them():
+    a = (_point([0.0, 0.0, 0.0], [0.1, 0.1, 0.1]), np.zeros((4, 4, 4)), np.arange(4), 0.0)
+    b = (_point([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]), np.zeros((2, 4, 4)), np.arange(2), 0.0)
     xyz, cov, _ = _combine([a, b])
-    assert abs(xyz[0] - 0.1) < 1e-9  # weights 1/0.1² : 1/0.3²
+    assert abs(xyz[0] - 0.1) < 1e-9  # weights 1/0.1^2 : 1/0.3^2
     assert cov[0, 0] < 0.1**2
-    xyz1, cov1, rms1 = _combine([a])
+    # Alignment errors dominate: the passes count about equally.
+    xyz, _, _ = _combine([a[:3] + (0.5,), b[:3] + (0.5,)])
+    assert 0.4 < xyz[0] < 0.5
+    # Elongated covariances in different directions: still between the passes.
+    c = (TriangulatedPoint(np.zeros(3), np.diag([0.01, 4.0, 0.01]), 2.0, 0.5, np.zeros((2, 3))),
+         None, np.arange(3), 0.3)
+    d = (TriangulatedPoint(np.array([1.0, 1.0, 0.0]), np.diag([4.0, 0.01, 0.01]), 2.0, 0.5,
+                           np.zeros((2, 3))), None, np.arange(3), 0.3)
+    xyz, _, _ = _combine([c, d])
+    assert np.all(xyz >= -1e-9) and np.all(xyz <= 1.0 + 1e-9)
+    xyz1, _, rms1 = _combine([a])
     np.testing.assert_array_equal(xyz1, a[0].xyz_world)
     assert rms1 == 0.5
