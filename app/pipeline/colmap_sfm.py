@@ -35,7 +35,7 @@ class FeatureOptions:
 
     max_features: int = 2048
     max_image_size: int = 1600
-    first_octave: int = -1
+    first_octave: int = 0
     overlap: int = 6
     threads: int = 2
     ba_max_refinements: int = 1
