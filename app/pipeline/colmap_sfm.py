@@ -94,15 +94,19 @@ def run_sfm(job: SfmJob) -> list[WindowResult]:
     ctx = multiprocessing.get_context("spawn")
     with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         try:
-            return pool.submit(_run_in_child, job).result()
+            results, timings_s = pool.submit(_run_in_child, job).result()
         except cf.process.BrokenProcessPool as exc:
             raise PipelineError("colmap", "COLMAP aborted the process (see the worker log); "
                                           "the images may be too few or too poor to match") from exc
+    if job.extract_names:
+        log.info("COLMAP: features of %d images extracted in %.1f s, matched in %.1f s",
+                 len(job.extract_names), timings_s["extract"], timings_s["match"])
+    return results
 
 
 # --- everything below runs in the child process --------------------------------------------------
 
-def _run_in_child(job: SfmJob) -> list[WindowResult]:
+def _run_in_child(job: SfmJob) -> tuple[list[WindowResult], dict[str, float]]:
     import pycolmap
 
     pycolmap.logging.minloglevel = 0 if job.verbose else 2
@@ -112,8 +116,10 @@ def _run_in_child(job: SfmJob) -> list[WindowResult]:
     if job.extract_names:
         if database.exists():
             database.unlink()
-        _extract_and_match(pycolmap, job, database)
-    elif not database.exists():
+        timings_s = _extract_and_match(pycolmap, job, database)
+    else:
+        timings_s = {}
+    if not database.exists():
         raise RuntimeError("no feature database to map from")
     results = []
     for i, window in enumerate(job.windows):
@@ -121,11 +127,13 @@ def _run_in_child(job: SfmJob) -> list[WindowResult]:
         result = _map_window(pycolmap, job, database, i, window)
         result.mapping_s = round(time.perf_counter() - t0, 3)
         results.append(result)
-    return results
+    return results, timings_s
 
 
-def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> None:
+def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
+    """Features and sequential matches of ``job.extract_names``; returns wall seconds per step."""
     opts = job.features
+    t0 = time.perf_counter()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "SIMPLE_RADIAL"
     extraction = pycolmap.FeatureExtractionOptions()
@@ -136,6 +144,7 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> None:
     pycolmap.extract_features(database, job.image_dir, image_names=job.extract_names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
+    t1 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = opts.threads
     pairing = pycolmap.SequentialPairingOptions()
@@ -144,6 +153,7 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> None:
     pairing.loop_detection = False  # needs a vocabulary file it would try to download
     pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu)
+    timings_s = {"extract": t1 - t0, "match": time.perf_counter() - t1}
     if job.prior_enu:
         h, v = job.prior_std_m
         cov = np.diag([h * h, h * h, v * v])
@@ -154,6 +164,7 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> None:
                         corr_data_id=image.data_id, position=np.asarray(job.prior_enu[image.name]),
                         position_covariance=cov,
                         coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
+    return timings_s
 
 
 def _colmap_camera(pycolmap, camera: CameraModel):
