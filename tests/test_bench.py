@@ -195,7 +195,7 @@ def test_quick_bench_writes_tables_json_and_plots(tmp_path):
     assert ours["calibration"]["source"] == "self"
     assert set(ours["calibration"]["errors_pct"]) == {"fx", "fy", "cx", "cy", "k1", "k2"}
     assert ours["signs"]["n_signs"] >= 1
-    assert journey["runs"]["naive"]["n_frames"] == 20
+    assert journey["runs"]["naive"]["n_frames"] == 30
     assert report["comparisons"]["turn-70"]["speed_ratio"] > 0
     assert (tmp_path / journey["plot"]).stat().st_size > 10_000
     md = md_path.read_text()
