@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.pipeline import ego_motion
 from app.pipeline.run import _combine
@@ -46,19 +47,80 @@ def test_a_long_pass_is_cut_into_parts_no_longer_than_max_frames():
     assert np.array_equal(np.concatenate([p.frame_idx for p in parts]), track.frame_idx)
 
 
-def test_windows_of_a_looped_sign_stay_short():
+CHAINED = {"step": 2, "overlap": 16, "bridge_gap": 40}
+
+
+@pytest.mark.parametrize("chaining", [{}, CHAINED])
+def test_windows_of_a_looped_sign_stay_short(chaining):
     """The journey's signs: one seen at the start and again at the end, others in between. Without
-    splitting, one window would cover the whole journey."""
+    splitting, the looped sign alone would need the whole journey mapped."""
     tracks = [_track([0, 1, 2, 3, 275, 280, 290, 299], "0"), _track(range(30, 60), "1"),
               _track(range(120, 150), "2"), _track(range(200, 240), "3")]
-    unsplit = ego_motion.plan_windows(tracks, 300, margin=15, max_frames=80)
-    assert unsplit == [(0, 300)]
     parts = [p for t in tracks for p in ego_motion.split_passes(t, max_gap=30, max_frames=50)]
-    windows = ego_motion.plan_windows(parts, 300, margin=15, max_frames=80)
-    assert max(b - a for a, b in windows) <= 80
-    for p in parts:  # every pass lies inside one window
-        a, b = p.span
-        assert any(wa <= a and b <= wb for wa, wb in windows), (p.span, windows)
+    windows = ego_motion.plan_windows(parts, 300, margin=15, max_frames=80, **chaining)
+    _check_windows(windows, parts, 300, margin=15, max_frames=80, step=chaining.get("step", 1))
+
+
+def _check_windows(windows, tracks, n_frames, *, margin, max_frames, step):
+    """The planning guarantees: in time order, inside the journey, on the step grid, no longer than
+    max_frames; every frame within ``margin`` of a track inside some window; no frame in more than
+    two windows (mapping cost stays about one reconstruction per frame)."""
+    assert windows == sorted(windows)
+    assert all(0 <= a < b <= n_frames and b - a <= max_frames and a % step == 0
+               for a, b in windows), windows
+    covered = np.zeros(n_frames, int)
+    for a, b in windows:
+        covered[a:b] += 1
+    for t in tracks:
+        a, b = t.span
+        assert covered[max(0, a - margin):min(n_frames, b + margin)].all(), (t.span, windows)
+    assert covered.max() <= 2, windows
+
+
+def _shared(w1, w2, step) -> set[int]:
+    """Journey frames that both windows map (every step-th frame from their starts)."""
+    return set(range(*w1, step)) & set(range(*w2, step))
+
+
+def test_a_stretch_longer_than_max_frames_becomes_a_chain_of_equal_windows():
+    tracks = [_track(range(20, 50), "1"), _track(range(45, 120), "2")]
+    windows = ego_motion.plan_windows(tracks, 300, margin=15, max_frames=80, **CHAINED)
+    _check_windows(windows, tracks, 300, margin=15, max_frames=80, step=2)
+    assert windows[0][0] == 4 and windows[-1][1] == 135  # margins, the start on the step grid
+    (a1, b1), (a2, b2) = windows
+    assert b1 - a2 >= 16 and len(_shared(*windows, 2)) >= 8  # both map the frames they share
+    assert abs((b1 - a1) - (b2 - a2)) <= 2  # no stub window at the end
+
+
+def test_a_long_pass_becomes_a_chain_of_overlapping_windows():
+    parts = ego_motion.split_passes(_track(range(10, 250)), max_gap=30, max_frames=50)
+    windows = ego_motion.plan_windows(parts, 300, margin=15, max_frames=80, **CHAINED)
+    _check_windows(windows, parts, 300, margin=15, max_frames=80, step=2)
+    assert len(windows) == 4  # 0-265 in windows of at most 80 sharing 16: (265 - 16) / 64
+    for w1, w2 in zip(windows, windows[1:]):
+        assert len(_shared(w1, w2, 2)) >= 8
+
+
+def test_tracks_across_a_short_gap_are_bridged_but_not_across_a_long_one():
+    tracks = [_track(range(20, 40), "1"), _track(range(94, 140), "2"),
+              _track(range(200, 230), "3")]
+    windows = ego_motion.plan_windows(tracks, 300, margin=15, max_frames=80, **CHAINED)
+    _check_windows(windows, tracks, 300, margin=15, max_frames=80, step=2)
+    # 55 -> 79 is a gap of 24 frames: one stretch 4-155, two chained windows; 155 -> 185 is 30
+    # frames: bridged too. With a bridge of 20, three separate stretches.
+    assert windows[0][0] == 4 and windows[-1][1] == 245
+    for w1, w2 in zip(windows, windows[1:]):
+        assert w1[1] - w2[0] >= 16
+    apart = ego_motion.plan_windows(tracks, 300, margin=15, max_frames=80,
+                                    **{**CHAINED, "bridge_gap": 20})
+    assert apart == [(4, 55), (78, 155), (184, 245)]
+
+
+def test_without_chaining_windows_only_cover_the_tracks():
+    tracks = [_track(range(20, 30), "1"), _track(range(70, 75), "2")]
+    assert ego_motion.plan_windows(tracks, 300, margin=15, max_frames=80) == [(5, 45), (55, 90)]
+    joined = ego_motion.plan_windows(tracks, 300, margin=15, max_frames=100, **CHAINED)
+    assert joined == [(4, 90)]
 
 
 def test_sign_tracks_keeps_track_ids_through_splitting():

@@ -26,7 +26,8 @@ def _to_opencv(pycolmap, cam) -> None:
     cam.params = np.array(params, dtype=float)
 
 
-def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float) -> None:
+def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
+                   function_tolerance: float) -> None:
     import pyceres
 
     options = pycolmap.BundleAdjustmentOptions()
@@ -37,6 +38,7 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     options.ceres.loss_function_scale = loss_scale_px
     options.ceres.solver_options.max_num_iterations = 100
+    options.ceres.solver_options.function_tolerance = function_tolerance
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
@@ -59,7 +61,8 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     del manifolds, params_blocks
 
 
-def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0) -> None:
+def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
+                          function_tolerance: float = 1e-6) -> None:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
@@ -67,12 +70,18 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0) ->
     observations with large errors are dropped in between and after: the robust loss leaves a few
     points far off (errors of 1e100 px were seen) that would swamp the mean reprojection error by
     which candidate windows are judged, and so reject a right calibration.
+
+    ``function_tolerance``: Ceres stops when an iteration lowers the cost by less than this
+    fraction. COLMAP's 0 ran both passes to 100 iterations: 7.7 s on turn-70's 22 images, 2.4 s
+    at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23).
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
-    _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0)
+    _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
+                   function_tolerance=function_tolerance)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0)
+    _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
+                   function_tolerance=function_tolerance)
     _filter_observations(pycolmap, rec, filter_max_error_px)
 
 

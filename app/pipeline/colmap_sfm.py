@@ -17,7 +17,7 @@ import logging
 import multiprocessing
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,8 @@ class FeatureOptions:
     overlap: int = 6
     threads: int = 2
     ba_max_refinements: int = 1
+    ba_function_tolerance: float = 1e-6
+    map_workers: int = 2
 
 
 @dataclass(frozen=True)
@@ -87,47 +89,88 @@ class SfmJob:
     # (horizontal, vertical): pose priors that keep long windows free of monocular scale drift.
     prior_enu: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     prior_std_m: tuple[float, float] = (0.5, 1.0)
+    # Correspondences made elsewhere (KLT tracks) to import instead of extracting SIFT; then
+    # ``extract_names`` must be empty and ``workdir`` gets a database of its own.
+    imported: "ImportedFeatures | None" = None
+
+
+@dataclass(frozen=True)
+class ImportedFeatures:
+    """Keypoints and tentative matches to verify and map; ``camera`` None: not known yet.
+
+    ``keypoints_px[k]`` (K_k, 2): keypoints of image ``image_names[k]`` in OpenCV pixels;
+    ``matches[(k1, k2)]`` (M, 2) uint32: keypoint indices into images k1 and k2.
+    """
+
+    image_names: list[str]
+    keypoints_px: list[np.ndarray]
+    matches: dict[tuple[int, int], np.ndarray]
+    camera: CameraModel | None
 
 
 def run_sfm(job: SfmJob) -> list[WindowResult]:
-    """Extract, match and map every window of ``job`` in a child process; one result per window."""
+    """Extract (or import) and match features, then map every window of ``job``, in child
+    processes; one result per window.
+
+    Windows are independent (each maps its own copy of the database), and COLMAP's incremental
+    mapper keeps about one core busy (CPU time ~1.1x wall on turn-70): ``map_workers`` processes
+    map windows side by side."""
     ctx = multiprocessing.get_context("spawn")
-    with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
-        try:
-            results, timings_s = pool.submit(_run_in_child, job).result()
-        except cf.process.BrokenProcessPool as exc:
-            raise PipelineError("colmap", "COLMAP aborted the process (see the worker log); "
-                                          "the images may be too few or too poor to match") from exc
-    if job.extract_names:
-        log.info("COLMAP: features of %d images extracted in %.1f s, matched in %.1f s",
-                 len(job.extract_names), timings_s["extract"], timings_s["match"])
+    workers = max(1, min(job.features.map_workers, len(job.windows)))
+    # The mapping tasks need no features: do not pickle the imported ones again for each.
+    light = replace(job, extract_names=[], imported=None, features=replace(
+        job.features, threads=max(1, job.features.threads // workers)))
+    try:
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            timings_s = pool.submit(_prepare_in_child, job).result()
+            t0 = time.perf_counter()
+            results = list(pool.map(_map_in_child, [light] * len(job.windows),
+                                    range(len(job.windows))))
+            timings_s["map"] = time.perf_counter() - t0
+    except cf.process.BrokenProcessPool as exc:
+        raise PipelineError("colmap", "COLMAP aborted the process (see the worker log); "
+                                      "the images may be too few or too poor to match") from exc
+    if "extract" in timings_s:
+        log.info("COLMAP: features of %d images %s in %.1f s, matched in %.1f s",
+                 len(job.imported.image_names) if job.imported else len(job.extract_names),
+                 "imported" if job.imported else "extracted", timings_s["extract"],
+                 timings_s["match"])
+    log.info("COLMAP: %d windows mapped in %.1f s by %d processes (per window %s s)",
+             len(results), timings_s["map"], workers, [r.mapping_s for r in results])
     return results
 
 
-# --- everything below runs in the child process --------------------------------------------------
+# --- everything below runs in the child processes ------------------------------------------------
 
-def _run_in_child(job: SfmJob) -> tuple[list[WindowResult], dict[str, float]]:
+def _pycolmap(job: SfmJob):
     import pycolmap
 
-    pycolmap.logging.minloglevel = 0 if job.verbose else 2
+    pycolmap.logging.minloglevel = 0 if job.verbose else 3  # glog's ERROR lines are ours to say
     pycolmap.logging.logtostderr = True
+    return pycolmap
+
+
+def _prepare_in_child(job: SfmJob) -> dict[str, float]:
+    """The stage's feature database, new when ``job`` brings features; wall seconds per step."""
+    pycolmap = _pycolmap(job)
     job.workdir.mkdir(parents=True, exist_ok=True)
     database = job.workdir / "features.db"
-    if job.extract_names:
-        if database.exists():
-            database.unlink()
-        timings_s = _extract_and_match(pycolmap, job, database)
-    else:
-        timings_s = {}
+    timings_s = {}
+    if job.imported is not None or job.extract_names:
+        database.unlink(missing_ok=True)
+        timings_s = (_import_and_verify(pycolmap, job, database) if job.imported is not None
+                     else _extract_and_match(pycolmap, job, database))
     if not database.exists():
         raise RuntimeError("no feature database to map from")
-    results = []
-    for i, window in enumerate(job.windows):
-        t0 = time.perf_counter()
-        result = _map_window(pycolmap, job, database, i, window)
-        result.mapping_s = round(time.perf_counter() - t0, 3)
-        results.append(result)
-    return results, timings_s
+    return timings_s
+
+
+def _map_in_child(job: SfmJob, index: int) -> WindowResult:
+    pycolmap = _pycolmap(job)
+    t0 = time.perf_counter()
+    result = _map_window(pycolmap, job, job.workdir / "features.db", index, job.windows[index])
+    result.mapping_s = round(time.perf_counter() - t0, 3)
+    return result
 
 
 def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
@@ -154,17 +197,58 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float
     pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu)
     timings_s = {"extract": t1 - t0, "match": time.perf_counter() - t1}
-    if job.prior_enu:
-        h, v = job.prior_std_m
-        cov = np.diag([h * h, h * h, v * v])
-        with pycolmap.Database.open(database) as db:
-            for image in db.read_all_images():
-                if image.name in job.prior_enu:
-                    db.write_pose_prior(pycolmap.PosePrior(
-                        corr_data_id=image.data_id, position=np.asarray(job.prior_enu[image.name]),
-                        position_covariance=cov,
-                        coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
+    _write_pose_priors(pycolmap, job, database)
     return timings_s
+
+
+def _write_pose_priors(pycolmap, job: SfmJob, database: Path) -> None:
+    if not job.prior_enu:
+        return
+    h, v = job.prior_std_m
+    cov = np.diag([h * h, h * h, v * v])
+    with pycolmap.Database.open(database) as db:
+        for image in db.read_all_images():
+            if image.name in job.prior_enu:
+                db.write_pose_prior(pycolmap.PosePrior(
+                    corr_data_id=image.data_id, position=np.asarray(job.prior_enu[image.name]),
+                    position_covariance=cov,
+                    coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
+
+
+def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
+    """Write ``job.imported`` into a new database and let COLMAP verify every pair (RANSAC on the
+    essential matrix of the known camera); returns wall seconds per step."""
+    feats = job.imported
+    t0 = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "SIMPLE_RADIAL"  # as SIFT extraction; replaced when the camera is known
+    pycolmap.Database.open(database).close()  # import_images wants the file to exist
+    pycolmap.import_images(database, job.image_dir, pycolmap.CameraMode.SINGLE,
+                           image_names=feats.image_names, options=reader)
+    with pycolmap.Database.open(database) as db:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        for cam in db.read_all_cameras() if feats.camera is not None else []:
+            new = _colmap_camera(pycolmap, feats.camera)
+            new.camera_id = cam.camera_id
+            new.has_prior_focal_length = True
+            db.update_camera(new)
+        image_ids = [ids[name] for name in feats.image_names]
+        for image_id, kp in zip(image_ids, feats.keypoints_px):
+            db.write_keypoints(image_id, np.asarray(kp, np.float32) + COLMAP_PIXEL_OFFSET)
+        for (k1, k2), m in feats.matches.items():
+            db.write_matches(image_ids[k1], image_ids[k2], np.asarray(m, np.uint32))
+    pairs = job.workdir / "pairs.txt"
+    pairs.write_text("".join(f"{feats.image_names[k1]} {feats.image_names[k2]}\n"
+                             for k1, k2 in feats.matches))
+    t1 = time.perf_counter()
+    verify = pycolmap.TwoViewGeometryOptions()
+    # KLT positions are sub-pixel and consistent along a track: with the lens known, a tighter
+    # gate than SIFT's 4 px keeps drifted tracks out of the mapper. Unknown, the epipolar model
+    # ignores the distortion and needs the slack.
+    verify.ransac.max_error = 2.0 if feats.camera is not None else 4.0
+    pycolmap.verify_matches(database, pairs, verify)
+    _write_pose_priors(pycolmap, job, database)
+    return {"extract": t1 - t0, "match": time.perf_counter() - t1}
 
 
 def _colmap_camera(pycolmap, camera: CameraModel):
@@ -228,6 +312,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     # calibration and sign errors stayed within the tests' and the quick bench's bars without them.
     options.ba_global_max_refinements = job.features.ba_max_refinements
     options.ba_local_max_refinements = job.features.ba_max_refinements
+    options.ba_local_function_tolerance = job.features.ba_function_tolerance
+    options.ba_global_function_tolerance = job.features.ba_function_tolerance
     options.random_seed = 0
     options.use_prior_position = window.use_position_priors
     options.use_robust_loss_on_prior_position = True
@@ -275,7 +361,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     stage1 = _camera_model(next(iter(rec.cameras.values())))
     if window.calibrate:
         from app.pipeline.colmap_refine import refine_all_intrinsics
-        refine_all_intrinsics(pycolmap, rec)
+        refine_all_intrinsics(pycolmap, rec,
+                              function_tolerance=job.features.ba_function_tolerance)
     return _window_result(rec, window, stage1 if window.calibrate else None)
 
 

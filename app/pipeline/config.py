@@ -21,6 +21,11 @@ class PipelineConfig(BaseModel):
     calib_frame_step: int = Field(
         2, description="map every n-th frame of a calibration window (wider baselines, fewer images)")
     calib_max_candidates: int = Field(5, description="candidate windows tried per journey")
+    # KLT tracks calibrated turn-70 3.5x faster than SIFT but less accurately (0.33 px instead of
+    # 0.14 px; fy 0.8 %, cy 1.1 %, k2 2.3 % off instead of 0.4, 0.8, 0.2 %; 2026-11-23): the
+    # small drift of a tracked corner along its track matters for the lens, not for ego-motion.
+    calib_front_end: Literal["klt", "sift"] = Field(
+        "sift", description="how self-calibration finds correspondences (see ego_front_end)")
     calib_initial_focal_factor: float = Field(
         0.8, description="first focal guess as a multiple of the image width (dash cams are wide)")
     calib_accept_reprojection_px: float = Field(
@@ -37,6 +42,11 @@ class PipelineConfig(BaseModel):
     sift_first_octave: int = Field(0, description="-1 upsamples the image: more small features, slower")
     match_overlap: int = Field(8, description="sequential matching: temporal neighbours per frame")
     colmap_threads: int = Field(2, description="threads COLMAP may use (0 = all)")
+    colmap_map_workers: int = Field(
+        2, description="processes mapping windows side by side (COLMAP's mapper uses ~1 core)")
+    ba_function_tolerance: float = Field(
+        1e-6, description="bundle adjustments stop when an iteration gains less than this "
+        "fraction of the cost (COLMAP's 0 runs them to their iteration limits)")
     ba_max_refinements: int = Field(
         1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 
@@ -44,6 +54,19 @@ class PipelineConfig(BaseModel):
     sign_window_margin_frames: int = Field(15, description="frames added before/after a sign track")
     ego_max_frames_per_window: int = 80
     ego_frame_step: int = Field(2, description="map every n-th frame of a sign window")
+    # Chained windows let the joint alignment (``alignment_joint``) average the GPS bias over the
+    # chain instead of over one window (the synthetic bias stays correlated over ~40-60 frames).
+    ego_window_overlap_frames: int = Field(
+        16, description="frames consecutive sign windows share when chained (0: no chaining)")
+    ego_bridge_gap_frames: int = Field(
+        40, description="sign windows at most this many frames apart are extended to overlap")
+    # "klt": Lucas-Kanade tracks through the mapped frames (``track_features``), verified and
+    # mapped by COLMAP; "sift": COLMAP's SIFT extraction and sequential matching, as calibration.
+    ego_front_end: Literal["klt", "sift"] = Field(
+        "klt", description="how ego-motion finds correspondences between frames")
+    klt_max_corners: int = Field(600, description="KLT corners kept per frame")
+    klt_pair_overlap: int = Field(
+        4, description="KLT: mapped frames a frame is paired with ahead (covers the initial pair)")
     ego_position_priors: bool = Field(
         False, description="GPS pose priors in COLMAP's mapping (slower; counters scale drift)")
 
@@ -57,6 +80,9 @@ class PipelineConfig(BaseModel):
     # better on our windows (bench).
     alignment: Literal["short", "full"] = "full"
     short_alignment_min_frames: int = 10
+    alignment_joint: bool = Field(
+        True, description="align windows that share frames jointly (they must agree on those "
+                          "frames) instead of each to GPS on its own")
 
     # Triangulation.
     min_track_frames: int = 3

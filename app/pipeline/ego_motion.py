@@ -18,10 +18,12 @@ geometry as undistorting the images first without resampling them (no interpolat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 
-from app.pipeline.colmap_sfm import WindowRequest, WindowResult
+from app.pipeline.colmap_sfm import ImportedFeatures, WindowRequest, WindowResult
+from app.pipeline.track_features import KltOptions, track_features
 from app.pipeline.types import CameraModel, Detection
 
 
@@ -84,18 +86,39 @@ def split_passes(track: SignTrack, *, max_gap: int, max_frames: int) -> list[Sig
             for part, (lo, hi) in enumerate(pieces)]
 
 
-def plan_windows(tracks: list[SignTrack], n_frames: int, *, margin: int,
-                 max_frames: int) -> list[tuple[int, int]]:
-    """Frame ranges [start, end) to reconstruct so that every track lies inside one of them."""
-    windows: list[tuple[int, int]] = []
-    for track in sorted(tracks, key=lambda t: t.span):
-        a, b = track.span
-        a, b = max(0, a - margin), min(n_frames, b + margin)
-        if windows and a <= windows[-1][1] and max(b, windows[-1][1]) - windows[-1][0] <= max_frames:
-            windows[-1] = (windows[-1][0], max(b, windows[-1][1]))
-        elif not any(wa <= a and b <= wb for wa, wb in windows):
-            windows.append((a, b))
+def plan_windows(tracks: list[SignTrack], n_frames: int, *, margin: int, max_frames: int,
+                 step: int = 1, overlap: int = 0, bridge_gap: int = 0) -> list[tuple[int, int]]:
+    """Frame ranges [start, end) to reconstruct: every frame within ``margin`` of a sign track.
+
+    The frames needed are merged into stretches (two closer than ``bridge_gap`` frames become one,
+    so that the joint alignment to GPS can tie them together and average the GPS bias over the
+    whole stretch); each stretch is cut into the fewest windows of at most ``max_frames`` frames in
+    which consecutive windows share ``overlap`` frames. Windows start on multiples of ``step`` so
+    that shared frames are mapped by both. A sign's frames may span two windows of a stretch:
+    jointly aligned, they agree on their shared frames to millimetres (``georeference``), and
+    every frame is mapped about once instead of once per sign window around it.
+    """
+    spans = sorted((max(0, a - margin), min(n_frames, b + margin)) for a, b in
+                   (t.span for t in tracks))
+    stretches: list[list[int]] = []
+    for a, b in spans:
+        if stretches and a <= stretches[-1][1] + bridge_gap:
+            stretches[-1][1] = max(stretches[-1][1], b)
+        else:
+            stretches.append([a // step * step, b])
+    windows = []
+    longest = max(step, (max_frames - overlap) // step * step)  # stride between window starts
+    for a, b in stretches:
+        count = max(1, _ceil_div(b - a - overlap, longest))
+        # Equal windows rather than full ones and a stub of a few frames that cannot be mapped.
+        stride = _ceil_div(_ceil_div(b - a - overlap, count), step) * step
+        starts = [a + k * stride for k in range(count)]
+        windows += [(s, min(b, s + stride + overlap)) for s in starts[:-1]] + [(starts[-1], b)]
     return windows
+
+
+def _ceil_div(a: int, b: int) -> int:
+    return -(-a // b)
 
 
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
@@ -128,6 +151,46 @@ def _init_pair(idx: list[int], frame_names: list[str], step: int,
         return None
     first = max(0, (len(idx) - k) // 2)
     return frame_names[idx[first]], frame_names[idx[first + k]]
+
+
+def mapped_frames(windows: list[tuple[int, int]], step: int) -> np.ndarray:
+    """(F,) sorted journey frame indices that ``requests(windows, step=step)`` maps."""
+    return np.array(sorted({i for a, b in windows for i in range(a, b, step)}), dtype=int)
+
+
+def tracked_features(frame_idx: np.ndarray, images: Iterable[np.ndarray], frame_names: list[str],
+                     camera: CameraModel | None, *, step: int, overlap: int,
+                     options: KltOptions = KltOptions(), min_matches: int = 15
+                     ) -> ImportedFeatures:
+    """KLT correspondences for COLMAP over the frames ``frame_idx`` (sorted; ``images`` are those
+    frames, 8-bit grayscale, in the same order). Tracks break where two of them are more than
+    ``step`` frames apart. Every pair up to ``overlap`` frames of ``frame_idx`` apart, with no
+    break between them and at least ``min_matches`` shared tracks, is a tentative pair (COLMAP
+    verifies it).
+
+    Tracking every frame instead of every ``step``-th gave the same calibration accuracy on
+    turn-70 (0.33 px either way), so only the mapped frames are read and tracked."""
+    frame_idx = np.asarray(frame_idx, dtype=int)
+    broken = np.concatenate([[False], np.diff(frame_idx) > step])
+
+    def with_breaks():
+        for image, brk in zip(images, broken):
+            if brk:
+                yield None
+            yield image
+
+    tracks = track_features(with_breaks(), options)
+    segment = np.cumsum(broken)  # no track crosses from one segment into the next
+    matches = {}
+    for k1 in range(len(frame_idx)):
+        for k2 in range(k1 + 1, min(len(frame_idx), k1 + overlap + 1)):
+            if segment[k2] != segment[k1]:
+                break
+            m = tracks.pair_matches(k1, k2)
+            if len(m) >= min_matches:
+                matches[(k1, k2)] = m
+    return ImportedFeatures([frame_names[i] for i in frame_idx], tracks.keypoints_px, matches,
+                            camera)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
 from app.pipeline.config import PipelineConfig
+from app.pipeline.sfm_stage import StageSfm
 from app.pipeline.triangulation import TriangulationError, triangulate, undistort_pixels
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
                                 ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
@@ -51,7 +53,6 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     clock = _Clock(progress)
     workdir.mkdir(parents=True, exist_ok=True)
     names = [f.path.name for f in journey.frames]
-    image_dir = journey.frames[0].path.parent
     n = len(journey.frames)
 
     origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0],
@@ -75,50 +76,35 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                       max_frames=max(1, config.ego_max_frames_per_window - 2 * margin))
                   if len(p.frame_idx) >= config.min_track_frames]
         ego_windows = ego_motion.plan_windows(tracks, n, margin=config.sign_window_margin_frames,
-                                              max_frames=config.ego_max_frames_per_window)
+                                              max_frames=config.ego_max_frames_per_window,
+                                              step=config.ego_frame_step,
+                                              overlap=config.ego_window_overlap_frames,
+                                              bridge_gap=config.ego_bridge_gap_frames)
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
              n, len(turn_windows), len(tracks), len(ego_windows))
     if not calib_windows and known_camera is None:
         raise calibration.no_turn_error(config)
 
-    features = colmap_sfm.FeatureOptions(config.sift_max_features, config.sift_max_image_size,
-                                         config.sift_first_octave, config.match_overlap,
-                                         config.colmap_threads, config.ba_max_refinements)
-    needed = sorted({i for a, b in ego_windows for i in range(a, b, config.ego_frame_step)}
-                    | {i for a, b in calib_windows for i in range(a, b, config.calib_frame_step)})
-    sfm_dir = workdir / "sfm"
+    def sfm_stage(name: str, windows, step: int, front_end: str) -> StageSfm:
+        return StageSfm(workdir / f"sfm_{name}", journey, windows, step, front_end, config,
+                        xyz_gps, verbose)
 
-    def sfm(requests):
-        nonlocal needed  # features are extracted once, by the first call
-        job = colmap_sfm.SfmJob(image_dir, sfm_dir, journey.image_width, journey.image_height,
-                                [names[i] for i in needed], requests, features, verbose,
-                                prior_enu={names[i]: tuple(xyz_gps[i]) for i in needed},
-                                prior_std_m=(config.gps_sigma_m, config.gps_alt_sigma_m))
-        needed = []
-        t0 = time.perf_counter()
-        results = colmap_sfm.run_sfm(job)
-        mapping = [r.mapping_s for r in results]
-        log.info("COLMAP: %d images featured+matched in %.1f s, %d windows mapped in %s s",
-                 len(job.extract_names), time.perf_counter() - t0 - sum(mapping), len(results),
-                 mapping)
-        return results
+    def calibrate_window(request: colmap_sfm.WindowRequest) -> colmap_sfm.WindowResult:
+        # Each candidate window gets correspondences of its own frames only, when it is tried:
+        # the first candidate usually succeeds, and the others' features would be wasted.
+        first, last = names.index(request.image_names[0]), names.index(request.image_names[-1])
+        stage = sfm_stage(f"calibrate_{first}", [(first, last + 1)], config.calib_frame_step,
+                          config.calib_front_end)
+        return stage.run([request], None)[0]
 
+    ego_sfm = sfm_stage("ego", ego_windows, config.ego_frame_step, config.ego_front_end)
     calib: Calibration
-    with clock.stage("calibrate", f"{len(calib_windows)} candidate windows"):
-        if calib_windows:
-            try:
-                calib = calibration.self_calibrate(
-                    turn_windows, names, config, lambda request: sfm([request])[0],
-                    hint=journey.camera_prior, width=journey.image_width,
-                    height=journey.image_height)
-            except PipelineError:
-                if known_camera is None:
-                    raise
-                log.warning("self-calibration failed; using the stored calibration of %s",
-                            journey.camera_id)
-                calib = Calibration(known_camera, "supplied")
-        else:
-            calib = Calibration(known_camera, "supplied")
+    with ThreadPoolExecutor(max_workers=1) as background:
+        if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
+            background.submit(ego_sfm.correspondences)
+        with clock.stage("calibrate", f"{len(calib_windows)} candidate windows"):
+            calib = _calibrate(journey, turn_windows, calib_windows, names, config,
+                               calibrate_window, known_camera)
     camera = calib.camera
 
     if not tracks:
@@ -126,21 +112,20 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                              origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
 
     with clock.stage("ego_motion", f"{len(ego_windows)} windows"):
-        results = sfm(ego_motion.requests(ego_windows, names, camera, step=config.ego_frame_step,
-                                          position_priors=config.ego_position_priors,
-                                          init_gap_frames=config.match_overlap))
+        results = ego_sfm.run(ego_motion.requests(
+            ego_windows, names, camera, step=config.ego_frame_step,
+            position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap),
+            camera)
         poses = ego_motion.window_poses(ego_windows, results, names)
     if not poses:
         raise PipelineError("ego_motion", "no window around the signs could be reconstructed: "
                             + "; ".join(r.error or "too few frames registered" for r in results))
 
     with clock.stage("align"):
-        aligned = []
-        for p in poses:
-            try:
-                aligned.append(georeference.align_window(p, xyz_gps))
-            except ValueError as exc:  # e.g. the car stood still through the whole window
-                log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
+        # A window that cannot be aligned (the car stood still through it) is logged and dropped.
+        aligned = georeference.align_windows(
+            poses, xyz_gps, joint=config.alignment_joint,
+            sigmas=georeference.JointSigmas(gps_m=config.gps_sigma_m))
     if not aligned:
         raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                             "(the GPS track does not move enough around the signs)")
@@ -159,6 +144,25 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_gps[traj_idx],
                          trajectory_T_world_cam=traj_T,
                          origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
+
+
+def _calibrate(journey: Journey, turn_windows, calib_windows, names: list[str],
+               config: PipelineConfig, calibrate_window, known_camera: CameraModel | None
+               ) -> Calibration:
+    """Self-calibration on the turns, or the stored calibration of the camera when there are no
+    candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed."""
+    if not calib_windows:
+        return Calibration(known_camera, "supplied")
+    try:
+        return calibration.self_calibrate(turn_windows, names, config, calibrate_window,
+                                          hint=journey.camera_prior, width=journey.image_width,
+                                          height=journey.image_height)
+    except PipelineError:
+        if known_camera is None:
+            raise
+        log.warning("self-calibration failed; using the stored calibration of %s",
+                    journey.camera_id)
+        return Calibration(known_camera, "supplied")
 
 
 def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Journey,
