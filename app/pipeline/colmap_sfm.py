@@ -19,6 +19,7 @@ import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -108,13 +109,14 @@ class ImportedFeatures:
     camera: CameraModel | None
 
 
-def run_sfm(job: SfmJob) -> list[WindowResult]:
+def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
+            ) -> list[WindowResult]:
     """Extract (or import) and match features, then map every window of ``job``, in child
     processes; one result per window.
 
     Windows are independent (each maps its own copy of the database), and COLMAP's incremental
     mapper keeps about one core busy (CPU time ~1.1x wall on turn-70): ``map_workers`` processes
-    map windows side by side."""
+    map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
     ctx = multiprocessing.get_context("spawn")
     workers = max(1, min(job.features.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
@@ -124,8 +126,11 @@ def run_sfm(job: SfmJob) -> list[WindowResult]:
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()
             t0 = time.perf_counter()
-            results = list(pool.map(_map_in_child, [light] * len(job.windows),
-                                    range(len(job.windows))))
+            futures = [pool.submit(_map_in_child, light, i) for i in range(len(job.windows))]
+            for k, _ in enumerate(cf.as_completed(futures), start=1):
+                if on_mapped is not None:
+                    on_mapped(k, len(futures))
+            results = [f.result() for f in futures]
             timings_s["map"] = time.perf_counter() - t0
     except cf.process.BrokenProcessPool as exc:
         raise PipelineError("colmap", "COLMAP aborted the process (see the worker log); "

@@ -1,18 +1,22 @@
-"""Ego-motion of the calibrated camera, only where it is needed: in windows around the sign tracks.
+"""Ego-motion of the calibrated camera, only where it is needed: near the sign tracks.
 
-Each sign needs camera poses for the frames that see it plus a margin of frames for a well-conditioned
-alignment to GPS (the paper's best results came from such short trajectories). Tracks whose windows
-overlap share one reconstruction; a window never grows past ``ego_max_frames_per_window`` so mapping
-cost stays linear in the journey length. A sign seen on two passes (a loop) is split into one track
-per pass (``split_passes``), each mapped in its own short window.
+Each sign needs camera poses for the frames that see it plus a margin of frames for a
+well-conditioned alignment to GPS. The frames near signs form stretches; each stretch is mapped as
+a chain of windows of at most ``ego_max_frames_per_window`` frames that share a few frames with
+their neighbours (``plan_windows``), so mapping cost stays linear in the journey length and every
+frame is mapped about once; the shared frames let the alignment tie the chain together
+(``georeference.align_windows``). A sign seen on two passes (a loop) is split into one track per
+pass (``split_passes``).
 
-Each reconstruction starts from two frames a few metres apart (``requests(init_gap_frames=...)``):
-left to itself, COLMAP starts from the most-matched pair, i.e. neighbouring frames, and on loop-300
-that short forward baseline towards a facade fixed a wrong relative pose which the whole window then
-kept (bent trajectories, 2-8 m ATE after a similarity, 25 deg rotation drift in 30 frames, at
-0.6 px mean reprojection error while the true poses fit the same feature tracks at 0.12 px). COLMAP maps each window with the intrinsics held fixed at the
-self-calibrated values; its camera model applies the calibrated distortion exactly, which is the same
-geometry as undistorting the images first without resampling them (no interpolation blur, no time).
+Correspondences come from KLT tracks (``track_features``, ``tracked_features``) by default, or from
+COLMAP's SIFT. Each window starts from two frames a few metres apart (``requests(init_gap_frames=
+...)``): left to itself, COLMAP starts from the most-matched pair, i.e. neighbouring frames, and on
+loop-300 that short forward baseline towards a facade fixed a wrong relative pose which the whole
+window then kept (bent trajectories, 2-8 m ATE after a similarity, at 0.6 px mean reprojection
+error while the true poses fit the same tracks at 0.12 px). COLMAP maps each window with the
+intrinsics held fixed at the self-calibrated values; its camera model applies the calibrated
+distortion exactly, which is the same geometry as undistorting the images first without
+resampling them (no interpolation blur, no time).
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 """Scale and place monocular reconstructions in the metric GPS frame (the paper's eq. 5-6).
 
-``full`` aligns each reconstructed window with one Umeyama similarity over all its frames; ``short``
-(the paper's best) aligns again over only the frames around one sign, which follows local scale
-drift. A short stretch of straight road leaves the roll about the road undetermined by positions;
-``alignment.align_trajectory`` then borrows the rotation from the window's full alignment.
+Each window alone is placed by one Umeyama similarity to the GPS fixes of its frames
+(``align_window``), i.e. shifted by the GPS bias averaged over its 30-80 frames (~0.5 m on the
+synthetic journeys, whose bias stays correlated over ~40-60 frames). ``align_windows`` aligns
+windows that pose the same frames (chained by ``ego_motion.plan_windows``) jointly: they must
+agree on those frames, so a whole chain averages the bias over its length. A short stretch of
+straight road leaves the roll about the road undetermined by positions;
+``alignment.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
 
-Each window alone is placed by the GPS fixes of its frames, i.e. shifted by the GPS bias averaged
-over its 30-80 frames (~0.5 m on the synthetic journeys, whose bias stays correlated over
-~40-60 frames).
-``align_windows`` aligns windows that pose the same frames (chained by ``ego_motion.plan_windows``)
-jointly: they must agree on those frames, so the whole chain averages the bias over its length.
+``track_poses`` gives a sign its frames' poses: ``full`` from its chain; ``short`` (the paper's
+best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign.
 """
 
 from __future__ import annotations

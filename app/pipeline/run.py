@@ -24,15 +24,20 @@ from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult
 
 log = logging.getLogger(__name__)
 
-# Share of the total time each stage usually takes (for the progress fraction).
-STAGE_WEIGHTS = {"turns": 0.01, "calibrate": 0.5, "ego_motion": 0.43,
-                 "align": 0.01, "triangulate": 0.05}
+# Seconds per mapped image, measured on the 2-core machine (turn-70 and long-1000, 2026-11-23):
+# how the progress fraction divides the journey between calibration and ego-motion.
+CALIBRATE_S_PER_IMAGE = 0.65
+EGO_MOTION_S_PER_IMAGE = 0.12
+OTHER_STAGES = {"turns": 0.01, "align": 0.01, "triangulate": 0.03}
 
 
 class _Clock:
-    def __init__(self, progress: ProgressFn):
+    """Stage timings, and progress as the fraction of the journey's expected work done."""
+
+    def __init__(self, progress: ProgressFn, weights: dict[str, float]):
         self.timings_s: dict[str, float] = {}
         self.progress = progress
+        self.weights = weights
         self.done = 0.0
 
     @contextmanager
@@ -41,8 +46,21 @@ class _Clock:
         t0 = time.perf_counter()
         yield
         self.timings_s[name] = round(time.perf_counter() - t0, 3)
-        self.done = min(1.0, self.done + STAGE_WEIGHTS.get(name, 0.0))
+        self.done = min(1.0, self.done + self.weights.get(name, 0.0))
         log.info("stage %s done in %.1f s %s", name, self.timings_s[name], message)
+
+    def within(self, name: str, fraction: float, message: str) -> None:
+        """Progress inside the running stage ``name``: ``fraction`` of it is done."""
+        self.progress(name, min(1.0, self.done + fraction * self.weights.get(name, 0.0)), message)
+
+
+def _stage_weights(n_calib_images: int, n_ego_images: int) -> dict[str, float]:
+    """Each stage's share of the journey's work, summing to 1."""
+    costs = {"calibrate": CALIBRATE_S_PER_IMAGE * n_calib_images,
+             "ego_motion": EGO_MOTION_S_PER_IMAGE * n_ego_images}
+    rest = 1.0 - sum(OTHER_STAGES.values())
+    total = sum(costs.values()) or 1.0
+    return {**OTHER_STAGES, **{k: rest * v / total for k, v in costs.items()}}
 
 
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
@@ -50,7 +68,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                     verbose: bool = False) -> JourneyResult:
     """Run every stage on ``journey``. ``known_camera``: an earlier calibration of this camera_id,
     used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason."""
-    clock = _Clock(progress)
+    clock = _Clock(progress, OTHER_STAGES)
     workdir.mkdir(parents=True, exist_ok=True)
     names = [f.path.name for f in journey.frames]
     n = len(journey.frames)
@@ -82,6 +100,9 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                                               bridge_gap=config.ego_bridge_gap_frames)
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
              n, len(turn_windows), len(tracks), len(ego_windows))
+    clock.weights = _stage_weights(
+        len(range(0, config.calib_window_frames, config.calib_frame_step)) * bool(calib_windows),
+        len(ego_motion.mapped_frames(ego_windows, config.ego_frame_step)))
     if not calib_windows and known_camera is None:
         raise calibration.no_turn_error(config)
 
@@ -115,7 +136,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         results = ego_sfm.run(ego_motion.requests(
             ego_windows, names, camera, step=config.ego_frame_step,
             position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap),
-            camera)
+            camera, on_mapped=lambda k, total: clock.within(
+                "ego_motion", k / total, f"{k} of {total} windows mapped"))
         poses = ego_motion.window_poses(ego_windows, results, names)
     if not poses:
         raise PipelineError("ego_motion", "no window around the signs could be reconstructed: "
@@ -222,8 +244,9 @@ def _combine(placed) -> tuple[np.ndarray, np.ndarray, float]:
     """(xyz, cov, rms_px) of one sign from its passes' triangulations ``(point, T, frame_idx,
     alignment_rms_m)``: their weighted mean, weights 1 / (std_m^2 + alignment_rms_m^2).
 
-    Each pass comes from its own window, placed by its own GPS alignment, whose error (the GPS
-    bias over the window, ~0.5 m) is not in the triangulation's covariance and dominates it; a
+    Each pass comes from its own stretch of trajectory, placed by the GPS there, whose error (the
+    GPS bias over the window or chain, ~0.2-0.5 m) is not in the triangulation's covariance and
+    dominates it; a
     full inverse-covariance mean of such passes can land outside both (measured on loop-300,
     short alignment: 0.81 m from passes 0.62 and 0.37 m off). A scalar weight keeps the mean
     between the passes.

@@ -13,6 +13,7 @@ import threading
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -62,9 +63,11 @@ class StageSfm:
                  time.perf_counter() - t0, len(imported.matches))
         return [], imported
 
-    def run(self, requests: list[colmap_sfm.WindowRequest],
-            camera: CameraModel | None) -> list[colmap_sfm.WindowResult]:
-        """Map ``requests``; ``camera`` None: intrinsics unknown (pairs verified uncalibrated)."""
+    def run(self, requests: list[colmap_sfm.WindowRequest], camera: CameraModel | None, *,
+            on_mapped: Callable[[int, int], None] | None = None
+            ) -> list[colmap_sfm.WindowResult]:
+        """Map ``requests``; ``camera`` None: intrinsics unknown (pairs verified uncalibrated).
+        ``on_mapped(k, total)`` is called as windows finish."""
         cfg = self.config
         extract, imported = ([], None) if self._stored else self.correspondences()
         if imported is not None:
@@ -79,7 +82,7 @@ class StageSfm:
                                       cfg.ba_function_tolerance, cfg.colmap_map_workers),
             self.verbose, prior_enu=self.priors,
             prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported)
-        return colmap_sfm.run_sfm(job)
+        return colmap_sfm.run_sfm(job, on_mapped=on_mapped)
 
 
 def _gray(path: Path) -> np.ndarray:
