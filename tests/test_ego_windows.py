@@ -170,3 +170,21 @@ def test_passes_combine_into_a_weighted_mean_between_them():
     xyz1, _, rms1 = _combine([a])
     np.testing.assert_array_equal(xyz1, a[0].xyz_world)
     assert rms1 == 0.5
+
+
+def test_a_short_track_off_the_step_grid_keeps_all_its_frames():
+    """Seen in frames 129-131 only: at step 2 the grid keeps 130 alone, too few to triangulate."""
+    short, long_ = _track([129, 130, 131], "11"), _track(range(140, 160), "12")
+    extra = ego_motion.off_grid_frames([short, long_], step=2, min_frames=3)
+    assert extra.tolist() == [129, 131]
+    assert ego_motion.window_frames((120, 150), 2, extra) == [120, 122, 124, 126, 128, 129, 130,
+                                                               131, 132, 134, 136, 138, 140, 142,
+                                                               144, 146, 148]
+    frames = ego_motion.mapped_frames([(120, 150), (140, 170)], 2, extra)
+    assert {129, 131} <= set(frames.tolist()) and 133 not in frames
+    names = [f"{i:06d}.png" for i in range(300)]
+    (request,) = ego_motion.requests([(120, 150)], names, CAMERA, step=2, extra=extra,
+                                     init_gap_frames=8)
+    assert request.image_names == [names[i] for i in ego_motion.window_frames((120, 150), 2,
+                                                                               extra)]
+    assert request.init_pair == (names[130], names[138])  # on the grid, in the middle

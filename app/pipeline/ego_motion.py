@@ -126,21 +126,23 @@ def _ceil_div(a: int, b: int) -> int:
 
 
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
-             step: int = 1, position_priors: bool = False,
+             step: int = 1, extra: np.ndarray = np.zeros(0, int), position_priors: bool = False,
              init_gap_frames: int | None = None) -> list[WindowRequest]:
-    """One mapping request per window, every ``step``-th frame (at 10 frames/s consecutive frames
-    add little geometry but cost extraction, matching and registration time).
+    """One mapping request per window: its frames on the ``step`` grid (at 10 frames/s
+    consecutive frames add little geometry but cost tracking, matching and registration time),
+    and those of the ``extra`` frames that fall inside it (``off_grid_frames``).
 
     ``init_gap_frames``: start each reconstruction from two frames about this far apart in the
     window's middle (``init_pair``) instead of COLMAP's most-matched pair. It must not exceed the
-    sequential matching overlap, or the two frames may never have been matched.
+    matching overlap, or the two frames may never have been matched.
     """
     out = []
     for a, b in windows:
-        idx = list(range(a, b, step))
+        idx = window_frames((a, b), step, extra)
         out.append(WindowRequest([frame_names[i] for i in idx], camera,
                                  use_position_priors=position_priors,
-                                 init_pair=_init_pair(idx, frame_names, step, init_gap_frames)))
+                                 init_pair=_init_pair(list(range(a, b, step)), frame_names, step,
+                                                      init_gap_frames)))
     return out
 
 
@@ -157,9 +159,27 @@ def _init_pair(idx: list[int], frame_names: list[str], step: int,
     return frame_names[idx[first]], frame_names[idx[first + k]]
 
 
-def mapped_frames(windows: list[tuple[int, int]], step: int) -> np.ndarray:
-    """(F,) sorted journey frame indices that ``requests(windows, step=step)`` maps."""
-    return np.array(sorted({i for a, b in windows for i in range(a, b, step)}), dtype=int)
+def off_grid_frames(tracks: list[SignTrack], step: int, min_frames: int) -> np.ndarray:
+    """(E,) sorted frames to map besides the ``step`` grid: all frames of each track that has fewer
+    than ``min_frames`` frames on the grid (a sign seen in 3 consecutive frames would otherwise
+    keep 1 or 2 of them and could not be triangulated: 2 of loop-300's 22 signs)."""
+    extra = {int(i) for t in tracks if (t.frame_idx % step == 0).sum() < min_frames
+             for i in t.frame_idx if i % step}
+    return np.array(sorted(extra), dtype=int)
+
+
+def window_frames(window: tuple[int, int], step: int,
+                  extra: np.ndarray = np.zeros(0, int)) -> list[int]:
+    """Frames a window maps: every ``step``-th from its start, plus the ``extra`` inside it."""
+    a, b = window
+    inside = extra[(extra >= a) & (extra < b)]
+    return sorted(set(range(a, b, step)) | set(inside.tolist()))
+
+
+def mapped_frames(windows: list[tuple[int, int]], step: int,
+                  extra: np.ndarray = np.zeros(0, int)) -> np.ndarray:
+    """(F,) sorted journey frame indices that ``requests(windows, step=step, extra=extra)`` maps."""
+    return np.array(sorted({i for w in windows for i in window_frames(w, step, extra)}), dtype=int)
 
 
 def tracked_features(frame_idx: np.ndarray, images: Iterable[np.ndarray], frame_names: list[str],

@@ -100,15 +100,16 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                                               bridge_gap=config.ego_bridge_gap_frames)
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
              n, len(turn_windows), len(tracks), len(ego_windows))
+    off_grid = ego_motion.off_grid_frames(tracks, config.ego_frame_step, config.min_track_frames)
     clock.weights = _stage_weights(
         len(range(0, config.calib_window_frames, config.calib_frame_step)) * bool(calib_windows),
-        len(ego_motion.mapped_frames(ego_windows, config.ego_frame_step)))
+        len(ego_motion.mapped_frames(ego_windows, config.ego_frame_step, off_grid)))
     if not calib_windows and known_camera is None:
         raise calibration.no_turn_error(config)
 
-    def sfm_stage(name: str, windows, step: int, front_end: str) -> StageSfm:
+    def sfm_stage(name: str, windows, step: int, front_end: str, **extra) -> StageSfm:
         return StageSfm(workdir / f"sfm_{name}", journey, windows, step, front_end, config,
-                        xyz_gps, verbose)
+                        xyz_gps, verbose, **extra)
 
     def calibrate_window(request: colmap_sfm.WindowRequest) -> colmap_sfm.WindowResult:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
@@ -118,7 +119,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                           config.calib_front_end)
         return stage.run([request], None)[0]
 
-    ego_sfm = sfm_stage("ego", ego_windows, config.ego_frame_step, config.ego_front_end)
+    ego_sfm = sfm_stage("ego", ego_windows, config.ego_frame_step, config.ego_front_end,
+                        extra=off_grid)
     calib: Calibration
     with ThreadPoolExecutor(max_workers=1) as background:
         if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
@@ -134,7 +136,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
     with clock.stage("ego_motion", f"{len(ego_windows)} windows"):
         results = ego_sfm.run(ego_motion.requests(
-            ego_windows, names, camera, step=config.ego_frame_step,
+            ego_windows, names, camera, step=config.ego_frame_step, extra=off_grid,
             position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))

@@ -27,16 +27,18 @@ log = logging.getLogger(__name__)
 
 
 class StageSfm:
-    """COLMAP mapping of the frame ``windows`` of ``journey``, every ``step``-th frame, with
+    """COLMAP mapping of the frame ``windows`` of ``journey``, every ``step``-th frame and the
+    ``extra`` frames (``ego_motion.window_frames``), with
     correspondences by ``front_end`` ("sift" or "klt"). The first ``run`` puts the correspondences
     of all those frames into the stage's database under ``workdir``; later runs map more windows
     from it."""
 
     def __init__(self, workdir: Path, journey: Journey, windows: list[tuple[int, int]], step: int,
-                 front_end: str, config: PipelineConfig, xyz_gps: np.ndarray, verbose: bool):
+                 front_end: str, config: PipelineConfig, xyz_gps: np.ndarray, verbose: bool, *,
+                 extra: np.ndarray = np.zeros(0, int)):
         self.workdir, self.journey, self.step = workdir, journey, step
         self.front_end, self.config, self.verbose = front_end, config, verbose
-        self.frame_idx = ego_motion.mapped_frames(windows, step)
+        self.frame_idx = ego_motion.mapped_frames(windows, step, extra)
         self.priors = {journey.frames[i].path.name: tuple(xyz_gps[i]) for i in self.frame_idx}
         self._lock = threading.Lock()
         self._features: tuple[list[str], colmap_sfm.ImportedFeatures | None] | None = None
