@@ -45,7 +45,7 @@ def full_suite() -> list[JourneySpec]:
     loop = SynthConfig(n_frames=300, loop=True, world_seed=0, seed=0)
     return [
         JourneySpec("loop-300", loop, VARIANTS, "300 frames, a closed loop (4 turns) and back "
-                    "past the start", naive_max_frames=150),
+                    "past the start", naive_max_frames=100),
         JourneySpec("straight-200", SynthConfig(n_frames=200, turns=0, world_seed=1, seed=1),
                     ("ours", "ours_alt", "gt", "gt_alt"),
                     "200 frames, no turn, same camera: given loop-300's calibration",
