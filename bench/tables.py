@@ -87,7 +87,7 @@ def table_ego_motion(report: dict) -> str:
     return ("### Table II: ego-motion ATE (camera centres vs truth)\n\n"
             "ATE full and ATE-5: after a least-squares similarity onto the truth (over all posed "
             "frames / every 5 consecutive frames); as georeferenced: the pipeline's own GPS "
-            "alignment, no further fit. Ours poses only the windows around signs.\n\n"
+            "alignment, no further fit. Ours poses only the frames near signs.\n\n"
             + md_table(header, rows))
 
 
