@@ -337,30 +337,29 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     empty = WindowResult([], np.zeros((0, 4, 4)),
                          window.camera or CameraModel(job.width, job.height, 1, 1, 0, 0),
                          n_input=len(window.image_names))
-    models = None
+    # The chosen initial pair first, then COLMAP's own choice (-1) if that one leads nowhere.
+    pairs = [(-1, -1)]
     if window.init_pair is not None:
         with pycolmap.Database.open(db_path) as db:
             ids = {im.name: im.image_id for im in db.read_all_images()}
         if all(name in ids for name in window.init_pair):
-            options.init_image_id1, options.init_image_id2 = (ids[n] for n in window.init_pair)
-            try:
-                models = pycolmap.incremental_mapping(db_path, job.image_dir, out, options=options)
-            except Exception:
-                models = None
-            if not models or max(r.num_reg_images() for r in models.values()) < 3:
-                log.warning("window %d: no reconstruction from the chosen initial pair %s; "
-                            "letting COLMAP choose", index, window.init_pair)
-                shutil.rmtree(out / "0", ignore_errors=True)
-                options.init_image_id1 = options.init_image_id2 = -1
-                models = None
-    try:
-        if models is None:
+            pairs.insert(0, tuple(ids[n] for n in window.init_pair))
+    models = None
+    for id1, id2 in pairs:
+        options.init_image_id1, options.init_image_id2 = id1, id2
+        error = "COLMAP found no initial image pair (too little parallax or texture)"
+        shutil.rmtree(out / "0", ignore_errors=True)
+        try:
             models = pycolmap.incremental_mapping(db_path, job.image_dir, out, options=options)
-    except Exception as exc:  # COLMAP raises for windows it cannot initialise
-        empty.error = f"mapping failed: {exc}"
-        return empty
+        except Exception as exc:  # COLMAP raises for windows it cannot initialise
+            models, error = None, f"mapping failed: {exc}"
+        if models and max(r.num_reg_images() for r in models.values()) >= 3:
+            break
+        if id1 != -1:
+            log.warning("window %d: no reconstruction from the chosen initial pair %s; "
+                        "letting COLMAP choose", index, window.init_pair)
     if not models:
-        empty.error = "COLMAP found no initial image pair (too little parallax or texture)"
+        empty.error = error
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = _camera_model(next(iter(rec.cameras.values())))

@@ -18,7 +18,8 @@ import numpy as np
 from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
 from app.pipeline.config import PipelineConfig
 from app.pipeline.sfm_stage import StageSfm
-from app.pipeline.triangulation import TriangulationError, triangulate, undistort_pixels
+from app.pipeline.triangulation import (TriangulationError, largest_std_m, triangulate,
+                                        undistort_pixels)
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
                                 ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
 
@@ -191,22 +192,23 @@ def _calibrate(journey: Journey, turn_windows, calib_windows, names: list[str],
 
 def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Journey,
                      origin: geodesy.LocalFrame, config: PipelineConfig):
-    """One sign per track id: each pass of a track is triangulated from its own window, the passes
+    """One sign per track id: each pass of a track is triangulated from its own poses, the passes
     that succeed are combined (``_combine``)."""
     passes: dict[str, list] = {}
+    classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
     for track in tracks:
         passes.setdefault(track.track_id, []).append(
             _triangulate_pass(track, aligned, xyz_gps, camera, config))
     signs: list[Sign] = []
     rejected: list[RejectedSign] = []
     for track_id, results in passes.items():
-        cls = next(t.cls for t in tracks if t.track_id == track_id)
+        cls = classes[track_id]
         placed = [r for r in results if not isinstance(r, str)]
         if not placed:
             rejected.append(RejectedSign(track_id, cls, "; ".join(dict.fromkeys(results))))
             continue
         xyz, cov, rms_px = _combine(placed)
-        std_m = float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))
+        std_m = largest_std_m(cov)
         if std_m > config.max_sign_std_m:
             rejected.append(RejectedSign(track_id, cls,
                                          f"uncertainty {std_m:.2f} m > {config.max_sign_std_m} m"))

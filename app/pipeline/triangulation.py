@@ -142,7 +142,7 @@ def triangulate(T_world_cam: np.ndarray, px_undist: np.ndarray, K: np.ndarray, *
         raise TriangulationError("refinement diverged (point not constrained)")
     cov = sigma_px**2 * np.linalg.inv(JtJ)
     cov = 0.5 * (cov + cov.T)
-    std_m = float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))
+    std_m = largest_std_m(cov)
 
     shift_m = float(np.linalg.norm(xyz - xyz0))
     if shift_m > max_shift_sigma * std_m:
@@ -151,3 +151,8 @@ def triangulate(T_world_cam: np.ndarray, px_undist: np.ndarray, K: np.ndarray, *
     if rms_px > max_rms_px:
         raise TriangulationError(f"reprojection rms {rms_px:.1f} px > {max_rms_px:.1f}")
     return TriangulatedPoint(xyz, cov, std_m, rms_px, p_cam)
+
+
+def largest_std_m(cov_world: np.ndarray) -> float:
+    """Standard deviation (m) along the worst direction of a (3, 3) position covariance."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(cov_world)[-1], 0.0)))
