@@ -19,11 +19,12 @@ What is made cheap, and why it is still the real thing:
   the pipeline runs with ``reuse_known_calibration``: exactly the path every later journey of a
   calibrated camera takes in production (``jobs.run_journey`` -> ``latest_calibration``).
   Self-calibration through the service is covered by test_e2e_embedded / test_e2e_stack.
-* 30 frames per journey (one ego-motion window of 15 images), SIFT without upsampling
-  (``sift_first_octave`` 0) and 1024 features: ~15 CPU s per journey instead of ~33 with the
-  defaults. (Cheaper still went wrong: with 24 frames journey 1's window reconstructed badly (one
-  sign, 22 m off); half-size images (621x188) put three journeys' signs 16-19 m off.)
-* ``colmap_threads`` 1: with one thread the pipeline was bit-reproducible (the same bundle three
+* 30 frames per journey (one ego-motion window of 15 images). (Cheaper went wrong when ego-motion
+  still used SIFT: with 24 frames journey 1's window reconstructed badly (one sign, 22 m off);
+  half-size images put three journeys' signs 16-19 m off.) The SIFT settings below were chosen
+  then; with KLT ego-motion and no self-calibration they no longer come into play.
+* ``colmap_threads`` 1: with one thread (COLMAP's matching and pair verification too) the
+  pipeline was bit-reproducible (the same bundle three
   times gave identical lat/lon to the last digit), so the two services' journey signs must be
   EXACTLY equal, and so are their maps (fusion's order does not depend on the database either).
 

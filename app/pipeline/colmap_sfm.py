@@ -242,16 +242,18 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
             db.write_keypoints(image_id, np.asarray(kp, np.float32) + COLMAP_PIXEL_OFFSET)
         for (k1, k2), m in feats.matches.items():
             db.write_matches(image_ids[k1], image_ids[k2], np.asarray(m, np.uint32))
-    pairs = job.workdir / "pairs.txt"
-    pairs.write_text("".join(f"{feats.image_names[k1]} {feats.image_names[k2]}\n"
-                             for k1, k2 in feats.matches))
     t1 = time.perf_counter()
     verify = pycolmap.TwoViewGeometryOptions()
     # KLT positions are sub-pixel and consistent along a track: with the lens known, a tighter
     # gate than SIFT's 4 px keeps drifted tracks out of the mapper. Unknown, the epipolar model
     # ignores the distortion and needs the slack.
     verify.ransac.max_error = 2.0 if feats.camera is not None else 4.0
-    pycolmap.verify_matches(database, pairs, verify)
+    verifier = pycolmap.GeometricVerifierOptions()
+    # As many threads as matching gets: with one, results are bit-reproducible (the order in
+    # which pairs are verified and written feeds the mapper).
+    verifier.num_threads = job.features.threads
+    pycolmap.geometric_verification(database, verifier_options=verifier,
+                                    two_view_geometry_options=verify)
     _write_pose_priors(pycolmap, job, database)
     return {"extract": t1 - t0, "match": time.perf_counter() - t1}
 
