@@ -28,10 +28,9 @@ log = logging.getLogger(__name__)
 
 class StageSfm:
     """COLMAP mapping of the frame ``windows`` of ``journey``, every ``step``-th frame and the
-    ``extra`` frames (``ego_motion.window_frames``), with
-    correspondences by ``front_end`` ("sift" or "klt"). The first ``run`` puts the correspondences
-    of all those frames into the stage's database under ``workdir``; later runs map more windows
-    from it."""
+    ``extra`` frames (``ego_motion.window_frames``), with correspondences by ``front_end`` ("sift"
+    or "klt"). The first ``run`` puts the correspondences of all those frames into the stage's
+    database under ``workdir``; later runs map more windows from it."""
 
     def __init__(self, workdir: Path, journey: Journey, windows: list[tuple[int, int]], step: int,
                  front_end: str, config: PipelineConfig, xyz_gps: np.ndarray, verbose: bool, *,
