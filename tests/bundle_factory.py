@@ -267,8 +267,9 @@ _CASES = {
     "gps_not_a_number": (lambda: _edit(_gps_edit(3, lon="8.41E")),
                          "gps.csv row 5: lon is '8.41E', expected a number"),
     "gps_jump": (lambda: _edit(_gps_edit(6, lat=f"{LAT0 + 0.01:.7f}")), "GPS jumps"),
+    # Frame 4 at 5 s is 4.4 s after the last fix: dropped, and 4 frames are too few to keep.
     "gps_frame_outside_span": (lambda: _edit(_gps_edit(7, timestamp_s="5.0")),
-                               "frame 000004 at 5.000 s is outside the GPS fixes' time span"),
+                               "GPS covers only 4 of 5 frames (80 %)"),
     "gpx_point_without_time": (lambda: _edit({"gps.gpx": gpx_bytes([(LAT0, LON0, None, None)])},
                                              gps="gpx"), "no <time>"),
     "exif_missing_on_a_frame": (lambda: _edit({"frames/000002.jpg": image_bytes("jpg", seed=2)},

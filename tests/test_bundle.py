@@ -75,8 +75,9 @@ def test_altitude_absent_or_partly_empty(tmp_path):
     journey = _read(tmp_path, {**bf.valid_files(), "gps.csv": bf.csv_bytes(bf.GPS_HEADER[:4], rows)})
     assert np.all(np.isnan(journey.alt_m)) and not journey.has_altitude
     rows = [list(r) for r in bf.gps_rows()]
-    rows[-1][4] = ""  # the last fix (0.6 s) has no altitude: frame 4 at 0.45 s is beyond 0.4 + 0.5
-    rows[6][4] = ""   # nor the fix at 0.4 s, so altitudes come from 0.0 and 0.2 s only
+    rows[-1][4] = ""  # the last fix (0.6 s) has no altitude
+    rows[6][4] = ""   # nor the fix at 0.4 s: altitudes come from 0.0 and 0.2 s, and frames after
+    # 0.2 s hold the last one (they are within the extrapolation bound)
     journey = _read(tmp_path, {**bf.valid_files(), "gps.csv": bf.csv_bytes(bf.GPS_HEADER, rows)})
     np.testing.assert_allclose(journey.alt_m, [112.125, 112.375, 112.5, 112.5, 112.5])
 

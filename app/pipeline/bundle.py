@@ -11,11 +11,16 @@ be a JPEG or PNG of the first frame's size; with ``decode_images`` every frame i
 decoded (raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to the
 stored pixels). GPS comes from ``app.pipeline.gps`` / ``app.pipeline.gps_exif``; detections from
 ``app.pipeline.bundle_detections``, with empty track ids filled by ``app.pipeline.tracks``.
+
+Frames lying too far outside the GPS fixes' time span are dropped from the journey's ends
+(``app.pipeline.gps``): their files are removed again, their detections left out (a detection may
+still name them: the bundle is valid), and ``Journey.warnings`` says so (also logged).
 """
 
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 
 import cv2
@@ -32,6 +37,8 @@ from app.pipeline.tracks import assign_tracks, sort_detections
 from app.pipeline.types import BundleError, Frame, Journey
 
 __all__ = ["BundleLimits", "read_bundle"]
+
+log = logging.getLogger(__name__)
 
 FRAME_EXTENSIONS = ("jpg", "jpeg", "png")
 MAX_MANIFEST_BYTES = 2**20
@@ -139,14 +146,23 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
             gps = gps_from_gpx(bz.read("gps.gpx"), frame_ids)
         else:
             gps = gps_from_exif(exif_fixes, frame_ids)
+        kept_ids, kept_paths = frame_ids[gps.kept], paths[gps.kept]
         detections = []
         if "detections.csv" in bz.files:
             text = decode_text(bz.read("detections.csv"), "detections.csv")
             detections = parse_detections(text, frame_ids, width, height)
-            detections = sort_detections(assign_tracks(detections, frame_ids), frame_ids)
-    frames = [Frame(fid, path, float(t)) for fid, path, t in zip(frame_ids, paths, gps.timestamp_s)]
+            kept = set(kept_ids)
+            detections = [d for d in detections if d.frame_id in kept]
+            detections = sort_detections(assign_tracks(detections, kept_ids), kept_ids)
+    for path in set(paths) - set(kept_paths):
+        path.unlink()  # so the extracted frames/ holds exactly the journey's frames
+    for warning in gps.warnings:
+        log.warning("%s: %s", Path(zip_path).name, warning)
+    frames = [Frame(fid, path, float(t))
+              for fid, path, t in zip(kept_ids, kept_paths, gps.timestamp_s)]
     prior = manifest.camera_prior.camera(width, height) if manifest.camera_prior else None
     return Journey(camera_id=manifest.camera_id, frames=frames, lat_deg=gps.lat_deg,
                    lon_deg=gps.lon_deg, alt_m=gps.alt_m, detections=detections,
                    image_width=width, image_height=height, vehicle_id=manifest.vehicle_id,
-                   captured_at=manifest.captured_at, camera_prior=prior)
+                   captured_at=manifest.captured_at, camera_prior=prior,
+                   warnings=list(gps.warnings))

@@ -9,15 +9,27 @@ Sources, by precedence: ``gps.csv``, else ``gps.gpx``, else EXIF tags of JPEG fr
 * a row with an empty frame is a fix only; a row with a frame and empty lat/lon is a timestamp only;
 * fixes must come in strictly increasing time; every frame needs a timestamp, and frame timestamps
   must increase in frame order; a row naming a frame that is not in ``frames/`` is used as a fix only;
-* lat/lon/alt are interpolated linearly in time to each frame; a frame may lie at most
-  ``MAX_EXTRAPOLATION_S`` outside the fixes' span (it then takes the end fix's position);
-* ``alt_m`` may be absent or empty: altitude is interpolated over the fixes that have one and is NaN
-  for frames outside their span.
+* lat/lon/alt are interpolated linearly in time to each frame; a gap between fixes (a dropout) is
+  simply interpolated across;
+* frames outside the fixes' time span: a 1 Hz receiver's first fix often comes up to a second after
+  the first frame, and its last one before the last frame. A frame at most ``extrapolation_bound_s``
+  = max(1.5 s, 1.5 median fix intervals), capped at 3 s, outside the span is extrapolated with the
+  velocity of the two end fixes (held at the end fix when they are less than
+  ``MIN_VELOCITY_BASELINE_S`` apart: their difference is then noise, not motion). The bound covers
+  one missed fix plus latency; beyond ~3 s a linear guess of a turning car drifts by metres
+  (0.5 a t^2 = 9 m at 2 m/s^2 lateral acceleration), more than GPS noise, which would skew the
+  alignment. Frames further outside are dropped from the journey's ends (frames, their GPS and
+  detections) with a warning in ``FrameGps.warnings``; the journey is refused when that would leave
+  fewer than ``MIN_COVERED_FRACTION`` of its frames or fewer than ``MIN_COVERED_FRAMES`` (a short
+  journey that the GPS covers entirely is fine);
+* ``alt_m`` may be absent or empty: altitude is interpolated over the fixes that have one, held at
+  the end value within the same bound outside their span (GPS altitude is too noisy to extrapolate a
+  slope from), and NaN beyond.
 
 ``gps.gpx`` (every ``<trkpt lat lon>`` with a ``<time>``, optional ``<ele>``, in document order):
 when there are exactly as many track points as frames, point i is frame i; otherwise the frames are
-spread uniformly in time over the track's first..last point. Timestamps are seconds since the first
-track point; a time without an offset is taken as UTC.
+spread uniformly in time over the track's first..last point (so no frame lies outside it).
+Timestamps are seconds since the first track point; a time without an offset is taken as UTC.
 
 Plausibility: positions may not move more than ``MAX_JUMP_M`` faster than ``MAX_SPEED_MPS`` between
 consecutive fixes or consecutive frames (a car cannot; GPS noise does not jump that far).
@@ -27,7 +39,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Sequence
 
@@ -37,7 +49,12 @@ from pyproj import Geod
 from app.pipeline.csv_table import parse_float, read_table
 from app.pipeline.types import BundleError
 
-MAX_EXTRAPOLATION_S = 0.5
+EXTRAPOLATION_MIN_S = 1.5  # extrapolation bound: max(MIN, FIX_INTERVALS x median interval), <= MAX
+EXTRAPOLATION_FIX_INTERVALS = 1.5
+EXTRAPOLATION_MAX_S = 3.0
+MIN_VELOCITY_BASELINE_S = 0.05  # fixes closer than a 20 Hz receiver's are a duplicate, not motion
+MIN_COVERED_FRACTION = 0.5
+MIN_COVERED_FRAMES = 10
 MAX_JUMP_M = 100.0
 MAX_SPEED_MPS = 100.0
 
@@ -56,12 +73,15 @@ class GpsFixes:
 
 @dataclass(frozen=True)
 class FrameGps:
-    """Per-frame time (s) and WGS84 position, arrays of shape (N,) aligned with the frames."""
+    """Per-frame time (s) and WGS84 position, arrays aligned with ``frame_ids[kept]`` (all frames
+    unless some lay too far outside the GPS fixes); ``warnings`` say which were dropped."""
 
     timestamp_s: np.ndarray
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     alt_m: np.ndarray
+    kept: slice = field(default_factory=lambda: slice(None))
+    warnings: tuple[str, ...] = ()
 
 
 def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
@@ -100,34 +120,74 @@ def check_plausible_motion(timestamp_s: np.ndarray, lat_deg: np.ndarray, lon_deg
             f"{MAX_SPEED_MPS:.0f} m/s is not a car)")
 
 
+def extrapolation_bound_s(t_fix_s: np.ndarray) -> float:
+    """How far (s) outside the fixes' span a frame may still be placed (module docstring)."""
+    median_interval_s = float(np.median(np.diff(t_fix_s))) if len(t_fix_s) > 1 else 0.0
+    return min(EXTRAPOLATION_MAX_S,
+               max(EXTRAPOLATION_MIN_S, EXTRAPOLATION_FIX_INTERVALS * median_interval_s))
+
+
+def _interp_extrap(t_query_s: np.ndarray, t_fix_s: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Linear in time inside the fixes; outside, the end pair's velocity continued (np.interp holds
+    the end value, which is kept when the pair is too close in time to give a velocity)."""
+    out = np.interp(t_query_s, t_fix_s, value)
+    if len(t_fix_s) < 2:
+        return out
+    for end, other, side in ((0, 1, t_query_s < t_fix_s[0]), (-1, -2, t_query_s > t_fix_s[-1])):
+        dt_s = t_fix_s[end] - t_fix_s[other]
+        if abs(dt_s) >= MIN_VELOCITY_BASELINE_S:
+            rate = (value[end] - value[other]) / dt_s
+            out[side] = value[end] + rate * (t_query_s[side] - t_fix_s[end])
+    return out
+
+
 def _interp_lon(t_query: np.ndarray, t_fix: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
     # Unwrap so a track crossing the antimeridian does not interpolate through lon 0.
     lon_unwrapped = np.unwrap(lon_deg, period=360.0)
-    lon = np.interp(t_query, t_fix, lon_unwrapped)
+    lon = _interp_extrap(t_query, t_fix, lon_unwrapped)
     return (lon + 180.0) % 360.0 - 180.0 if np.any(np.abs(lon) > 180.0) else lon
+
+
+def _dropped_warning(ids: Sequence[str], gap_s: float, where: str, bound_s: float) -> str:
+    span = ids[0] if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
+    return (f"dropped {len(ids)} frame{'s' if len(ids) > 1 else ''} {span} (up to {gap_s:.1f} s "
+            f"{where}; frames more than {bound_s:.1f} s outside the GPS fixes cannot be placed)")
 
 
 def interpolate_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
                           frame_ids: Sequence[str]) -> FrameGps:
-    """Linear interpolation of the fixes to the frame times (the fixes must be time-ordered)."""
-    t_fix = fixes.timestamp_s
-    outside = ((frame_timestamp_s < t_fix[0] - MAX_EXTRAPOLATION_S)
-               | (frame_timestamp_s > t_fix[-1] + MAX_EXTRAPOLATION_S))
-    if np.any(outside):
-        i = int(np.flatnonzero(outside)[0])
+    """Fixes (time-ordered) -> the frames (increasing times) they cover: interpolated inside the
+    fixes' span, extrapolated just outside, frames further out dropped from both ends."""
+    t_fix, t_frame = fixes.timestamp_s, np.asarray(frame_timestamp_s, float)
+    bound_s = extrapolation_bound_s(t_fix)
+    first = int(np.searchsorted(t_frame, t_fix[0] - bound_s, side="left"))
+    stop = int(np.searchsorted(t_frame, t_fix[-1] + bound_s, side="right"))
+    n_frames, n_kept = len(t_frame), max(0, stop - first)
+    if n_kept < n_frames and (n_kept < MIN_COVERED_FRAMES
+                              or n_kept < MIN_COVERED_FRACTION * n_frames):
         raise BundleError(
-            f"frame {frame_ids[i]} at {frame_timestamp_s[i]:.3f} s is outside the GPS fixes' time "
-            f"span ({t_fix[0]:.3f} .. {t_fix[-1]:.3f} s); GPS must cover every frame")
-    lat = np.interp(frame_timestamp_s, t_fix, fixes.lat_deg)
-    lon = _interp_lon(frame_timestamp_s, t_fix, fixes.lon_deg)
-    alt = np.full(len(frame_timestamp_s), np.nan)
+            f"GPS covers only {n_kept} of {n_frames} frames ({100 * n_kept / n_frames:.0f} %): "
+            f"the fixes span {t_fix[0]:.3f} .. {t_fix[-1]:.3f} s, the frames {t_frame[0]:.3f} .. "
+            f"{t_frame[-1]:.3f} s, and a frame may lie at most {bound_s:.1f} s outside the fixes; "
+            f"at least {MIN_COVERED_FRACTION:.0%} of the frames and {MIN_COVERED_FRAMES} frames "
+            "must be covered")
+    warnings = []
+    if first > 0:
+        warnings.append(_dropped_warning(frame_ids[:first], t_fix[0] - t_frame[0],
+                                         f"before the first GPS fix at {t_fix[0]:.3f} s", bound_s))
+    if stop < n_frames:
+        warnings.append(_dropped_warning(frame_ids[stop:], t_frame[-1] - t_fix[-1],
+                                         f"after the last GPS fix at {t_fix[-1]:.3f} s", bound_s))
+    t_kept = t_frame[first:stop]
+    lat = _interp_extrap(t_kept, t_fix, fixes.lat_deg)
+    lon = _interp_lon(t_kept, t_fix, fixes.lon_deg)
+    alt = np.full(len(t_kept), np.nan)
     has_alt = np.isfinite(fixes.alt_m)
     if np.any(has_alt):
         t_alt = t_fix[has_alt]
-        inside = ((frame_timestamp_s >= t_alt[0] - MAX_EXTRAPOLATION_S)
-                  & (frame_timestamp_s <= t_alt[-1] + MAX_EXTRAPOLATION_S))
-        alt[inside] = np.interp(frame_timestamp_s[inside], t_alt, fixes.alt_m[has_alt])
-    return FrameGps(np.asarray(frame_timestamp_s, float), lat, lon, alt)
+        inside = (t_kept >= t_alt[0] - bound_s) & (t_kept <= t_alt[-1] + bound_s)
+        alt[inside] = np.interp(t_kept[inside], t_alt, fixes.alt_m[has_alt])
+    return FrameGps(t_kept, lat, lon, alt, slice(first, stop), tuple(warnings))
 
 
 def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
@@ -142,7 +202,7 @@ def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
     check_frame_times(frame_timestamp_s, frame_ids, strict=True)
     frame_gps = interpolate_to_frames(fixes, frame_timestamp_s, frame_ids)
     check_plausible_motion(frame_gps.timestamp_s, frame_gps.lat_deg, frame_gps.lon_deg,
-                           [f"frame {f}" for f in frame_ids])
+                           [f"frame {f}" for f in frame_ids[frame_gps.kept]])
     return frame_gps
 
 

@@ -8,6 +8,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Sequence
 
 from app.geojson import feature_collection, journey_sign_features
 from app.pipeline.bundle import read_bundle
@@ -24,10 +25,12 @@ def _progress_printer(stream=sys.stderr):
     return progress
 
 
-def report(result: JourneyResult) -> dict:
-    """The human/machine-readable summary written beside the GeoJSON."""
+def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
+    """The human/machine-readable summary written beside the GeoJSON; ``warnings``: the bundle's
+    (``Journey.warnings``)."""
     cal = result.calibration
     return {
+        "warnings": list(warnings),
         "calibration": {"source": cal.source, **cal.camera.params(),
                         "stage1": cal.stage1.params() if cal.stage1 else None,
                         "n_images": cal.n_images, "n_registered": cal.n_registered,
@@ -66,7 +69,7 @@ def run_process(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(feature_collection(journey_sign_features(result.signs)), indent=1))
     report_path = Path(args.report) if args.report else out.with_suffix(".report.json")
-    report_path.write_text(json.dumps(report(result), indent=1))
+    report_path.write_text(json.dumps(report(result, journey.warnings), indent=1))
     cal = result.calibration.camera
     print(f"calibration ({result.calibration.source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
           f"cx={cal.cx:.1f} cy={cal.cy:.1f} k1={cal.k1:.3f} k2={cal.k2:.3f}")

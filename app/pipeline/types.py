@@ -105,6 +105,8 @@ class Journey:
     vehicle_id: str | None = None
     captured_at: str | None = None
     camera_prior: CameraModel | None = None
+    # What validation tolerated but the uploader should know (e.g. frames dropped for lack of GPS).
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def has_altitude(self) -> bool:
