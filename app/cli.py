@@ -24,7 +24,7 @@ def _add_synth(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--turns", type=int, default=1, help="number of ~90 degree turns (0 = straight)")
-    p.add_argument("--out", required=True, help="output directory (bundle.zip, truth.json)")
+    p.add_argument("--out", default=None, help="output directory (bundle.zip, truth.json)")
     p.add_argument("--world-seed", type=int, default=None, help="world layout seed (default: --seed)")
     p.add_argument("--low-texture", action="store_true", help="weak, low-contrast textures")
     p.add_argument("--loop", action="store_true", help="a closed loop back to the start (4 turns)")
@@ -32,6 +32,16 @@ def _add_synth(sub) -> None:
                    help="drive this many metres right of the road centreline")
     p.add_argument("--image-format", choices=["png", "jpg"], default=None)
     p.add_argument("--gps-format", choices=["csv", "gpx", "exif"], default=None)
+    synth_sub = p.add_subparsers(dest="synth_command", metavar="{corpus}")
+    c = synth_sub.add_parser("corpus", help="a varied corpus of journeys (cameras, lenses, turns, "
+                             "speeds, scenes, GPS receivers, detectors), each with its truth")
+    c.add_argument("--n", type=int, required=True, help="number of journeys")
+    c.add_argument("--seed", type=int, default=0,
+                   help="first journey's seed (journeys seed..seed+n-1)")
+    c.add_argument("--out", required=True, help="corpus directory (corpus.json, <name>/...)")
+    c.add_argument("--workers", type=int, default=1, help="journeys rendered in parallel")
+    c.add_argument("--max-frames", type=int, default=None,
+                   help="cap on frames per journey (default 300)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,6 +37,21 @@ def gps_csv(frame_ids, timestamps_s, lat_deg, lon_deg, alt_m) -> str:
     return out.getvalue()
 
 
+def gps_csv_async(frame_ids, frame_timestamps_s, fix_timestamps_s, lat_deg, lon_deg,
+                  alt_m) -> str:
+    """The contract's asynchronous form: a timestamp-only row per frame, a frame-less row per fix,
+    in time order (a frame before a fix at the same time)."""
+    rows = [(t, 0, [fid, f"{t:.3f}", "", "", ""]) for fid, t in zip(frame_ids, frame_timestamps_s)]
+    rows += [(t, 1, ["", f"{t:.3f}", f"{la:.9f}", f"{lo:.9f}", f"{al:.3f}"])
+             for t, la, lo, al in zip(fix_timestamps_s, lat_deg, lon_deg, alt_m)]
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(["frame", "timestamp_s", "lat", "lon", "alt_m"])
+    for _, _, row in sorted(rows, key=lambda r: (r[0], r[1])):
+        w.writerow(row)
+    return out.getvalue()
+
+
 def gps_gpx(start: datetime, timestamps_s, lat_deg, lon_deg, alt_m) -> str:
     """One track point per frame, timed ``start + timestamp_s``."""
     ET.register_namespace("", GPX_NS)
@@ -137,7 +152,19 @@ def truth(j: "SynthJourney") -> dict:
                   for k, (s, tid, la, lo, al)
                   in enumerate(zip(j.signs, j.track_ids, lat, lon, alt))],
         "removed_signs": list(cfg.removed_signs),
+        # Detections in detections.csv that are not of any sign, and true ones the detector missed.
+        "false_detections": [_det_truth(d) for d in j.false_detections],
+        "missed_detections": [_det_truth(d) for d in j.missed_detections],
+        **({} if j.gps_timestamps_s is None else {"gps_fixes": [
+            {"timestamp_s": float(t), "true_enu": [round(float(x), 6) for x in true],
+             "enu": [round(float(x), 6) for x in noisy]}
+            for t, true, noisy in zip(j.gps_timestamps_s, j.gps_true_enu, j.gps_enu)]}),
     }
+
+
+def _det_truth(d: Detection) -> dict:
+    return {"frame": d.frame_id, "track_id": d.track_id, "class": d.cls,
+            "box": [round(v, 3) for v in (d.x1, d.y1, d.x2, d.y2)]}
 
 
 def _encode(j: "SynthJourney", i: int, image: np.ndarray, start: datetime) -> bytes:
@@ -155,6 +182,13 @@ def _encode(j: "SynthJourney", i: int, image: np.ndarray, start: datetime) -> by
     return out.getvalue()
 
 
+def _all_detections(j: "SynthJourney") -> list[Detection]:
+    if not j.false_detections:
+        return j.detections
+    order = {fid: i for i, fid in enumerate(j.frame_ids)}
+    return sorted(j.detections + j.false_detections, key=lambda d: order[d.frame_id])
+
+
 def write_journey(j: "SynthJourney", out_dir: Path) -> Path:
     """Render every frame into ``out_dir/bundle.zip``; write ``out_dir/truth.json``."""
     cfg = j.config
@@ -169,13 +203,16 @@ def write_journey(j: "SynthJourney", out_dir: Path) -> Path:
             # Compressed images gain nothing from deflate.
             z.writestr(f"frames/{j.frame_ids[i]}.{ext}", _encode(j, i, image, start),
                        compress_type=zipfile.ZIP_STORED)
-        if cfg.gps_format == "csv":
+        if cfg.gps_format == "csv" and j.gps_timestamps_s is not None:
+            z.writestr("gps.csv", gps_csv_async(j.frame_ids, j.timestamps_s, j.gps_timestamps_s,
+                                                j.lat_deg, j.lon_deg, j.alt_m))
+        elif cfg.gps_format == "csv":
             z.writestr("gps.csv", gps_csv(j.frame_ids, j.timestamps_s, j.lat_deg, j.lon_deg,
                                           j.alt_m))
         elif cfg.gps_format == "gpx":
             z.writestr("gps.gpx", gps_gpx(start, j.timestamps_s, j.lat_deg, j.lon_deg, j.alt_m))
         if cfg.with_detections:
-            z.writestr("detections.csv", detections_csv(j.detections))
+            z.writestr("detections.csv", detections_csv(_all_detections(j)))
     os.replace(tmp, bundle)
     (out_dir / "truth.json").write_text(json.dumps(truth(j), indent=1))
     return bundle

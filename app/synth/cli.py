@@ -1,4 +1,5 @@
-"""``signmap synth``: render a synthetic journey bundle and its ground truth."""
+"""``signmap synth``: render a synthetic journey bundle and its ground truth; ``signmap synth
+corpus``: a varied corpus of them (``app.synth.corpus``)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,24 @@ def config_from_args(args) -> SynthConfig:
     return SynthConfig(**{k: v for k, v in opt.items() if v is not None})
 
 
+def run_corpus(args) -> int:
+    from app.synth.corpus import write_corpus
+    from app.synth.draw import MAX_FRAMES
+
+    t0 = time.perf_counter()
+    path = write_corpus(args.n, args.seed, Path(args.out), workers=args.workers,
+                        max_frames=args.max_frames or MAX_FRAMES)
+    print(path)
+    print(f"{args.n} journeys in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return 0
+
+
 def run_synth(args) -> int:
+    if getattr(args, "synth_command", None) == "corpus":
+        return run_corpus(args)
+    if args.out is None:
+        print("signmap synth: the following arguments are required: --out", file=sys.stderr)
+        return 2
     cfg = config_from_args(args)
     out = Path(args.out)
     t0 = time.perf_counter()

@@ -1,5 +1,5 @@
 """What an on-board sign detector would report: boxes around the visible plates, in the original
-(distorted) image, with pixel noise."""
+(distorted) image, with pixel noise, misses and false detections."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 
 from app.pipeline.types import CameraModel, Detection
+from app.synth.layout import SIGN_CLASSES
+from app.synth.lens import fold_radius
 from app.synth.render import first_hits
 from app.synth.scene import Scene
 from app.synth.world import SignTruth
@@ -43,7 +45,11 @@ def _in_model_domain(camera: CameraModel, p_cam: np.ndarray, px: np.ndarray) -> 
     und = cv2.undistortPoints(px.reshape(-1, 1, 2), camera.K, camera.dist,
                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
                                         100, 1e-10))
-    return bool(np.allclose(und.reshape(-1, 2), p_cam[:, :2] / p_cam[:, 2:3], atol=1e-6))
+    if np.allclose(und.reshape(-1, 2), p_cam[:, :2] / p_cam[:, 2:3], atol=1e-6):
+        return True
+    # OpenCV's iteration may stop short on a wide-angle lens where the model is one-to-one.
+    r_u = np.hypot(p_cam[:, 0], p_cam[:, 1]) / p_cam[:, 2]
+    return bool(np.all(r_u < fold_radius(camera.k1, camera.k2)))
 
 
 def visible_signs(camera: CameraModel, scene: Scene, signs: list[SignTruth], plate_ids: list[int],
@@ -99,3 +105,41 @@ def noisy_detections(rng: np.random.Generator, camera: CameraModel, views: list[
                               y2=float(box[3]), score=round(score, 3)))
         kept.append(view)
     return dets, kept
+
+
+def drop_missed(rng: np.random.Generator, dets: list[Detection], views: list[SignView],
+                miss_rate: float) -> tuple[list[Detection], list[SignView], list[Detection]]:
+    """A detector that misses each plate with probability ``miss_rate`` per frame; returns the
+    kept detections, their views and the missed detections."""
+    if miss_rate <= 0.0 or not dets:
+        return dets, views, []
+    missed = rng.random(len(dets)) < miss_rate
+    kept = [i for i in range(len(dets)) if not missed[i]]
+    return ([dets[i] for i in kept], [views[i] for i in kept],
+            [d for d, m in zip(dets, missed) if m])
+
+
+def false_tracks(rng: np.random.Generator, camera: CameraModel, n_tracks: int,
+                 frame_ids: list[str], first_track_id: int, blank_ids: bool) -> list[Detection]:
+    """``n_tracks`` short tracks (2-6 frames) of boxes where there is no sign, with a real sign
+    class: what a detector hallucinates on a poster or a tail light. Each box drifts and grows a
+    little from frame to frame, as a real detection of something static would."""
+    dets = []
+    w, h = camera.width, camera.height
+    for k in range(n_tracks):
+        length = int(rng.integers(2, 7))
+        first = int(rng.integers(0, max(1, len(frame_ids) - length + 1)))
+        size = max(MIN_BOX_PX + 4.0, float(rng.uniform(0.01, 0.04)) * w)
+        x, y = float(rng.uniform(0, w - size)), float(rng.uniform(0, h - size))
+        vx, vy = rng.uniform(-0.01, 0.01, 2) * w
+        cls = str(rng.choice(SIGN_CLASSES))
+        tid = "" if blank_ids else str(first_track_id + k)
+        for f in range(first, min(first + length, len(frame_ids))):
+            box = np.clip([x, y, x + size, y + size], 0, [w - 1, h - 1, w - 1, h - 1])
+            if box[2] - box[0] >= MIN_BOX_PX and box[3] - box[1] >= MIN_BOX_PX:
+                dets.append(Detection(frame_id=frame_ids[f], track_id=tid, cls=cls,
+                                      x1=float(box[0]), y1=float(box[1]), x2=float(box[2]),
+                                      y2=float(box[3]),
+                                      score=round(float(rng.uniform(0.4, 0.9)), 3)))
+            x, y, size = x + vx, y + vy, size * 1.04
+    return dets

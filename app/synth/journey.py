@@ -3,13 +3,9 @@ ground truth to score the pipeline against; ``write_bundle`` writes it as the co
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
-import json
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Iterator
 
 import numpy as np
 
@@ -18,76 +14,18 @@ from app.pipeline.types import CameraModel, Detection
 from app.synth.bundle import GENERATOR_VERSION  # noqa: F401  (re-exported)
 from app.synth.bundle import truth as truth_dict
 from app.synth.bundle import write_journey
-from app.synth.detect import SignView, noisy_detections, visible_signs
+from app.synth.config import (KITTI_LIKE_CAMERA, STREAM_DET, STREAM_EFFECTS,  # noqa: F401
+                              STREAM_FALSE_DET, STREAM_GPS, STREAM_GPS_CLOCK, STREAM_POSE,
+                              SynthConfig)
+from app.synth.detect import (SignView, drop_missed, false_tracks, noisy_detections,
+                              visible_signs)
+from app.synth.effects import ImageEffects, image_effects
 from app.synth.render import CameraRays, Rendered, camera_rays, render_frame
-from app.synth.road import min_travel_m
 from app.synth.scene import Scene, build_scene
-from app.synth.trajectory import camera_poses, noisy_gps, smooth_noise
-from app.synth.world import SignTruth, World, WorldSpec, build_world
+from app.synth.trajectory import camera_poses, fix_times, noisy_gps, smooth_noise
+from app.synth.world import SignTruth, World, build_world
 
-KITTI_LIKE_CAMERA = CameraModel(width=1242, height=375, fx=959.2, fy=952.9, cx=694.4, cy=241.7,
-                                k1=-0.369, k2=0.158)
 SCENERY_AHEAD_M = 40.0
-
-
-@dataclass(frozen=True)
-class SynthConfig:
-    world_seed: int = 0
-    seed: int = 0  # everything that is noise: GPS, jitter, detection boxes
-    n_frames: int = 120
-    turns: int = 1
-    loop: bool = False
-    fps: float = 10.0
-    speed_mps: float = 8.0
-    camera: CameraModel = KITTI_LIKE_CAMERA
-    cam_height_m: float = 1.65
-    pitch_jitter_deg: float = 0.3
-    roll_jitter_deg: float = 0.2
-    lateral_offset_m: float = 0.0  # metres right of the centreline (a lane offset)
-    start_m: float = 0.0  # road arc length at the first frame
-    # Road length the world is built for; None: what this journey drives from start_m = 0, or the
-    # least that fits the turns. Journeys share a world when their world_spec() agree.
-    world_travel_m: float | None = None
-    n_signs: int | None = None
-    gps_white_sigma_m: float = 0.3
-    gps_bias_sigma_m: float = 0.3
-    gps_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gps_alt_sigma_m: float = 0.5
-    det_noise_px: float = 0.7
-    low_texture: bool = False
-    removed_signs: tuple[str, ...] = ()
-    origin_lat_deg: float = 49.0110
-    origin_lon_deg: float = 8.4180
-    origin_alt_m: float = 112.0
-    image_format: Literal["png", "jpg"] = "png"  # gps_format "exif" implies "jpg"
-    jpeg_quality: int = 92
-    gps_format: Literal["csv", "gpx", "exif"] = "csv"
-    blank_track_ids: bool = False
-    with_detections: bool = True
-    camera_id: str | None = None  # default: "synth-cam-<hash of the camera model>"
-    vehicle_id: str | None = "synth-vehicle"
-    captured_at: str = "2025-06-01T10:00:00Z"
-    camera_prior: CameraModel | None = None  # written to the manifest as a hint when given
-
-    def world_spec(self) -> WorldSpec:
-        travel = self.world_travel_m
-        if travel is None:
-            travel = max(float(math.ceil((self.n_frames - 1) / self.fps * self.speed_mps)),
-                         float(math.ceil(min_travel_m(self.turns, self.loop))))
-        return WorldSpec(world_seed=self.world_seed, turns=self.turns, loop=self.loop,
-                         travel_m=travel, n_signs=self.n_signs, low_texture=self.low_texture)
-
-    def effective_camera_id(self) -> str:
-        if self.camera_id:
-            return self.camera_id
-        params = json.dumps([self.camera.width, self.camera.height, self.camera.params()])
-        return "synth-cam-" + hashlib.sha1(params.encode()).hexdigest()[:10]
-
-    def frame_format(self) -> str:
-        return "jpg" if self.gps_format == "exif" else self.image_format
-
-    def replace(self, **changes) -> "SynthConfig":
-        return dataclasses.replace(self, **changes)
 
 
 @dataclass
@@ -99,16 +37,21 @@ class SynthJourney:
     timestamps_s: np.ndarray  # (N,)
     s_m: np.ndarray  # (N,) road arc length of each frame
     T_world_cam: np.ndarray  # (N, 4, 4) true poses, camera -> ENU
-    gps_enu: np.ndarray  # (N, 3) the noisy fixes, ENU metres
-    lat_deg: np.ndarray  # (N,) the noisy fixes, WGS84
+    gps_enu: np.ndarray  # (M, 3) the noisy fixes, ENU metres (M = N: one per frame)
+    lat_deg: np.ndarray  # (M,) the noisy fixes, WGS84
     lon_deg: np.ndarray
     alt_m: np.ndarray
     signs: list[SignTruth]  # the signs present in this journey's world, in track-id order
     track_ids: list[str]  # per sign
-    detections: list[Detection]
+    detections: list[Detection]  # the true detections the detector kept
     views: list[SignView]  # one per detection, with the true camera-frame position
     scene: Scene
     rays: CameraRays
+    gps_timestamps_s: np.ndarray | None = None  # (M,) fix times; None: the frames' timestamps
+    gps_true_enu: np.ndarray | None = None  # (M, 3) where the antenna truly was at each fix
+    missed_detections: list[Detection] = field(default_factory=list)
+    false_detections: list[Detection] = field(default_factory=list)
+    effects: ImageEffects | None = None
 
     @property
     def camera(self) -> CameraModel:
@@ -118,7 +61,12 @@ class SynthJourney:
     def n_frames(self) -> int:
         return len(self.frame_ids)
 
+    @property
+    def fix_timestamps_s(self) -> np.ndarray:
+        return self.timestamps_s if self.gps_timestamps_s is None else self.gps_timestamps_s
+
     def render(self, i: int) -> Rendered:
+        """The exact render of frame i, before image effects."""
         return render_frame(self.scene, self.rays, self.T_world_cam[i])
 
     def truth(self) -> dict:
@@ -126,9 +74,39 @@ class SynthJourney:
         return truth_dict(self)
 
     def frames(self) -> Iterator[np.ndarray]:
-        """The frames (H, W, 3) BGR uint8, rendered one at a time."""
+        """The frames (H, W, 3) BGR uint8 as the camera delivers them, rendered one at a time."""
         for i in range(self.n_frames):
-            yield self.render(i).image_bgr
+            rendered = self.render(i)
+            if self.effects is None or not self.effects.active:
+                yield rendered.image_bgr
+            else:
+                yield self.effects.apply(i, rendered, self.rays, self.T_world_cam,
+                                         self.timestamps_s)
+
+
+def _gps(cfg: SynthConfig, profile, road, rngs, timestamps, T):
+    """(fix times or None, true fix positions, noisy fixes), all ENU."""
+    if cfg.gps_rate_hz is None:
+        true_enu, t_fix, rate = T[:, :3, 3], None, cfg.fps
+    else:
+        if cfg.gps_format != "csv":
+            raise ValueError("a GPS rate needs gps_format 'csv' (fixes apart from frames)")
+        phase = cfg.gps_phase_s
+        if phase is None:  # the receiver's clock has nothing to do with the camera's
+            phase = float(rngs[STREAM_GPS_CLOCK].uniform(0.0, 1.0 / cfg.gps_rate_hz))
+        t_fix, keep = fix_times(float(timestamps[-1]), cfg.gps_rate_hz, phase, cfg.gps_dropouts)
+        s_fix = profile.s_at(t_fix)
+        xy = road.offset(s_fix, np.full(len(s_fix), cfg.lateral_offset_m))
+        true_enu, rate = np.column_stack([xy, np.full(len(s_fix), cfg.cam_height_m)]), \
+            cfg.gps_rate_hz
+    # Noise on the receiver's full clock, then the dropouts: the bias drifts on through a gap.
+    noisy = noisy_gps(rngs[STREAM_GPS], true_enu, rate, cfg.gps_white_sigma_m,
+                      cfg.gps_bias_sigma_m, cfg.gps_bias_m, cfg.gps_alt_sigma_m)
+    if t_fix is None:
+        return None, true_enu, noisy
+    if keep.sum() < 2:
+        raise ValueError("fewer than two GPS fixes outside the dropouts")
+    return t_fix[keep], true_enu[keep], noisy[keep]
 
 
 def generate(cfg: SynthConfig, world: World | None = None) -> SynthJourney:
@@ -141,19 +119,18 @@ def generate(cfg: SynthConfig, world: World | None = None) -> SynthJourney:
         world = build_world(spec)
     elif world.spec != spec:
         raise ValueError("the given world was built from a different WorldSpec")
-    distance_m = (cfg.n_frames - 1) / cfg.fps * cfg.speed_mps
-    if not spec.loop and cfg.start_m + distance_m > world.road.s_m[-1] - SCENERY_AHEAD_M:
+    if not spec.loop and cfg.start_m + cfg.distance_m() > world.road.s_m[-1] - SCENERY_AHEAD_M:
         raise ValueError("the journey drives past the end of its world: set world_travel_m")
-    seeds = np.random.SeedSequence([cfg.seed, cfg.world_seed]).spawn(3)
-    rng_pose, rng_gps, rng_det = (np.random.default_rng(s) for s in seeds)
+    streams = cfg.noise_streams()
+    rngs = [np.random.default_rng(s) for s in streams]
     timestamps = np.arange(cfg.n_frames) / cfg.fps
-    s_m = cfg.start_m + cfg.speed_mps * timestamps
-    jitter = smooth_noise(rng_pose, cfg.n_frames, 0.5 * cfg.fps, dims=2)
+    profile = cfg.speed_profile()
+    s_m = profile.s_at(timestamps)
+    jitter = smooth_noise(rngs[STREAM_POSE], cfg.n_frames, 0.5 * cfg.fps, dims=2)
     T = camera_poses(world.road, s_m, cfg.lateral_offset_m, cfg.cam_height_m,
                      np.radians(cfg.pitch_jitter_deg) * jitter[:, 0],
                      np.radians(cfg.roll_jitter_deg) * jitter[:, 1])
-    gps_enu = noisy_gps(rng_gps, T[:, :3, 3], cfg.fps, cfg.gps_white_sigma_m, cfg.gps_bias_sigma_m,
-                        cfg.gps_bias_m, cfg.gps_alt_sigma_m)
+    t_fix, gps_true, gps_enu = _gps(cfg, profile, world.road, rngs, timestamps, T)
     origin = frame_at(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
     lat, lon, alt = origin.to_geodetic(gps_enu)
     scene = build_scene(world, cfg.removed_signs)
@@ -164,13 +141,22 @@ def generate(cfg: SynthConfig, world: World | None = None) -> SynthJourney:
     track_ids = ["" if cfg.blank_track_ids else str(k) for k in range(len(signs))]
     frame_ids = [f"{i:06d}" for i in range(cfg.n_frames)]
     views = visible_signs(cfg.camera, scene, signs, [scene_plate[s.sign_id] for s in signs], T)
-    detections, views = noisy_detections(rng_det, cfg.camera, views, signs, frame_ids, track_ids,
-                                         cfg.det_noise_px)
+    detections, views = noisy_detections(rngs[STREAM_DET], cfg.camera, views, signs, frame_ids,
+                                         track_ids, cfg.det_noise_px)
+    rng_false = rngs[STREAM_FALSE_DET]
+    detections, views, missed = drop_missed(rng_false, detections, views, cfg.det_miss_rate)
+    false = false_tracks(rng_false, cfg.camera, cfg.n_false_tracks, frame_ids, len(signs),
+                         cfg.blank_track_ids)
+    effects = image_effects(rngs[STREAM_EFFECTS], (cfg.seed, cfg.world_seed, STREAM_EFFECTS),
+                            cfg.n_frames, cfg.fps, cfg.exposure_s, cfg.gain_drift,
+                            cfg.gain_jump_rate_hz, cfg.noise_dn)
     return SynthJourney(config=cfg, world=world, origin=origin, frame_ids=frame_ids,
                         timestamps_s=timestamps, s_m=s_m, T_world_cam=T, gps_enu=gps_enu,
                         lat_deg=lat, lon_deg=lon, alt_m=alt, signs=signs, track_ids=track_ids,
                         detections=detections, views=views, scene=scene,
-                        rays=camera_rays(cfg.camera))
+                        rays=camera_rays(cfg.camera), gps_timestamps_s=t_fix,
+                        gps_true_enu=gps_true, missed_detections=missed, false_detections=false,
+                        effects=effects)
 
 
 def write_bundle(cfg: SynthConfig, out_dir: Path, world: World | None = None) -> Path:

@@ -97,8 +97,19 @@ def _sight_keepout(road: Road, signs: list[SignPlacement]):
     return unary_union(wedges)
 
 
+def density_factors(density: float) -> tuple[float, float]:
+    """(scale, gap probability) of a scene ``density`` in 0..1. ``scale`` multiplies building
+    heights and divides setbacks and spacings: 0.5 at a sparse suburb, 2 in a dense city. Both are
+    exactly today's values (1.0, 0.25) at the default 0.5, so default worlds do not change."""
+    scale = 2.0 ** (2.0 * (density - 0.5))
+    if density <= 0.5:
+        return scale, 0.25 * 2.4 ** (2.0 * (0.5 - density))  # up to 0.6: many gaps
+    return scale, 0.25 * 0.2 ** (2.0 * (density - 0.5))  # down to 0.05: a closed street wall
+
+
 def layout_world(rng_signs, rng_build, rng_props, road: Road, travel_m: float,
-                 n_signs: int) -> Layout:
+                 n_signs: int, density: float = 0.5) -> Layout:
+    scale, gap_p = density_factors(density)
     signs = place_signs(rng_signs, road, travel_m, n_signs)
     centre = LineString(road.xy_enu[::10])
     keepout = _sight_keepout(road, signs)
@@ -111,14 +122,14 @@ def layout_world(rng_signs, rng_build, rng_props, road: Road, travel_m: float,
     for side in (1.0, -1.0):
         s, prev_d = s_lo - 10.0 * (not road.closed), 8.0
         while s < s_hi:
-            if rng_build.random() < 0.25:  # a gap, with a building further back behind it
-                gap = float(rng_build.uniform(4.0, 12.0))
-                _back_wall(rng_build, road, s + gap / 2, side, prev_d, free, walls)
+            if rng_build.random() < gap_p:  # a gap, with a building further back behind it
+                gap = float(rng_build.uniform(4.0, 12.0)) / scale
+                _back_wall(rng_build, road, s + gap / 2, side, prev_d, free, walls, scale)
                 s += gap
                 continue
             length = float(rng_build.uniform(10.0, 30.0))
-            d = float(rng_build.uniform(5.0, 14.0))
-            height = float(rng_build.uniform(6.0, 15.0))
+            d = float(rng_build.uniform(5.0, 14.0)) / scale
+            height = float(rng_build.uniform(6.0, 15.0)) * scale
             depth = float(rng_build.uniform(6.0, 14.0))
             # A block in the way of a sign or too close to the road steps back, then shrinks.
             for length, d, depth in ((length, d, depth), (length, d + 5.0, depth),
@@ -136,27 +147,27 @@ def layout_world(rng_signs, rng_build, rng_props, road: Road, travel_m: float,
             s += length
         s = s_lo + float(rng_build.uniform(0, 20))
         while s < s_hi:  # a row of tall distant buildings, seen above and between the fronts
-            _far_wall(rng_build, road, s, side, free, walls)
-            s += float(rng_build.uniform(25.0, 45.0))
+            _far_wall(rng_build, road, s, side, free, walls, scale)
+            s += float(rng_build.uniform(25.0, 45.0)) / scale
     buildings = unary_union(footprints + [LineString([w.a_xy, w.b_xy]) for w in walls]).buffer(0.3)
     _props(rng_props, road, signs, free, buildings, walls, roofs)
     return Layout(signs=signs, walls=walls, roofs=roofs)
 
 
-def _back_wall(rng, road, s_mid, side, prev_d, free, walls) -> None:
-    d = prev_d + float(rng.uniform(6.0, 20.0))
+def _back_wall(rng, road, s_mid, side, prev_d, free, walls, scale) -> None:
+    d = prev_d + float(rng.uniform(6.0, 20.0)) / scale
     half = float(rng.uniform(5.0, 12.0))
     a, b = road.offset([s_mid - half, s_mid + half], [side * d, side * d])
     if free(LineString([a, b]), 8.0):
-        walls.append(Wall(a, b, 0.0, float(rng.uniform(8.0, 20.0)), "back"))
+        walls.append(Wall(a, b, 0.0, float(rng.uniform(8.0, 20.0)) * scale, "back"))
 
 
-def _far_wall(rng, road, s, side, free, walls) -> None:
+def _far_wall(rng, road, s, side, free, walls, scale) -> None:
     d = float(rng.uniform(25.0, 45.0))
     half = float(rng.uniform(8.0, 18.0))
     a, b = road.offset([s - half, s + half], [side * d, side * d])
     if free(LineString([a, b]), 15.0):
-        walls.append(Wall(a, b, 0.0, float(rng.uniform(10.0, 25.0)), "far"))
+        walls.append(Wall(a, b, 0.0, float(rng.uniform(10.0, 25.0)) * scale, "far"))
 
 
 def _props(rng, road, signs, free, buildings, walls, roofs) -> None:

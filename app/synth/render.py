@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from app.pipeline.types import CameraModel
+from app.synth.lens import undistort_normalized
 from app.synth.scene import MIP_LEVELS, Atlas, Scene
 
 SKY_ID = -1
@@ -52,6 +53,7 @@ def camera_rays(camera: CameraModel) -> CameraRays:
     pix = np.stack([cols, rows], axis=-1).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     und = cv2.undistortPoints(pix, camera.K, camera.dist, criteria=criteria).reshape(h, w, 2)
+    und = _fix_diverged(camera, und, pix.reshape(h, w, 2))
     xn, yn = und[..., 0], und[..., 1]
     norm = np.sqrt(1.0 + xn * xn + yn * yn)
     # Solid angle of a pixel from the Jacobian of the undistortion, projected onto the unit sphere.
@@ -64,6 +66,20 @@ def camera_rays(camera: CameraModel) -> CameraRays:
     return CameraRays(camera=camera, xn=xn.astype(np.float32), yn=yn.astype(np.float32),
                       log2_footprint=log2_fp.astype(np.float32), ray_norm=norm.astype(np.float32),
                       tile_lo=tiles.min(axis=(1, 3)), tile_hi=tiles.max(axis=(1, 3)))
+
+
+def _fix_diverged(camera: CameraModel, und: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """OpenCV's iteration stops short near the rim of some strong wide-angle lenses (see
+    ``app.synth.lens``): where its ray does not project back onto its pixel, take the robust one."""
+    r2 = np.sum(und * und, axis=-1)
+    radial = 1.0 + camera.k1 * r2 + camera.k2 * r2 * r2
+    back = np.stack([und[..., 0] * radial * camera.fx + camera.cx,
+                     und[..., 1] * radial * camera.fy + camera.cy], axis=-1)
+    bad = ~np.all(np.abs(back - pix) < 1e-6, axis=-1)
+    if bad.any():
+        und = und.copy()
+        und[bad] = undistort_normalized(camera, pix[bad])
+    return und
 
 
 def _windows(scene: Scene, rays: CameraRays, T_world_cam: np.ndarray):

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 SAMPLE_STEP_M = 0.1
+MIN_STRAIGHT_M = 12.0  # before the first and after the last turn (and between, unless given)
+TurnSpecs = tuple[tuple[float, float], ...]  # (signed angle_deg, radius_m); positive turns left
 
 
 @dataclass(frozen=True)
@@ -52,10 +54,16 @@ class Road:
         return xy + np.asarray(right_m, dtype=float).reshape(-1, 1) * right
 
 
-def min_travel_m(turns: int, loop: bool) -> float:
+def min_travel_m(turns: int, loop: bool, turn_specs: TurnSpecs | None = None,
+                 turn_gaps_m: tuple[float, ...] | None = None) -> float:
     """The shortest ``travel_m`` that ``build_road`` accepts for any seed."""
     if loop:
         return 4 * 20.0 * math.pi / 2 + 4 * 15.0
+    if turn_specs is not None:
+        arcs_m = sum(abs(math.radians(a)) * r for a, r in turn_specs)
+        if turn_gaps_m is None:
+            return arcs_m + MIN_STRAIGHT_M * (len(turn_specs) + 1)
+        return arcs_m + sum(turn_gaps_m) + 2 * MIN_STRAIGHT_M
     return turns * 20.0 * math.radians(100.0) + 12.0 * (turns + 1)
 
 
@@ -80,14 +88,23 @@ def _integrate(segments: list[tuple[float, float]], heading0: float, start_xy: n
 
 
 def build_road(rng: np.random.Generator, turns: int, loop: bool, travel_m: float,
-               margin_m: float = 60.0, lead_m: float = 20.0) -> Road:
+               margin_m: float = 60.0, lead_m: float = 20.0, turn_specs: TurnSpecs | None = None,
+               turn_gaps_m: tuple[float, ...] | None = None) -> Road:
     """A road whose first ``travel_m`` metres hold ``turns`` turns spread between straights.
 
     The open road continues ``margin_m`` past ``travel_m`` (the camera must see scenery ahead at the
     end of its journey). A loop is a rounded rectangle of four same-direction 90 degree turns whose
     perimeter is ``travel_m``: a journey of that length comes back to its start.
+
+    ``turn_specs`` replaces the random ~90 degree turns by the given arcs; ``turn_gaps_m`` (one per
+    pair of consecutive turns, 0 = arcs back to back as in a roundabout) fixes the straights between
+    them, else all straights share what the arcs leave of ``travel_m``.
     """
     heading0 = float(rng.uniform(0.0, 2.0 * math.pi))
+    if turn_specs is not None:
+        if loop:
+            raise ValueError("turn_specs and loop cannot be combined")
+        return _road_from_specs(rng, heading0, turn_specs, turn_gaps_m, travel_m, margin_m, lead_m)
     if loop:
         radius = float(rng.uniform(12.0, 20.0))
         arc = radius * math.pi / 2.0
@@ -119,6 +136,37 @@ def build_road(rng: np.random.Generator, turns: int, loop: bool, travel_m: float
     pieces: list[tuple[float, float]] = []
     for i in range(turns):
         pieces += [(float(straights[i]), 0.0), (float(arcs[i]), float(signs[i] / radii[i]))]
+    pieces.append((float(straights[-1]), 0.0))
+    back = -lead_m * np.array([math.cos(heading0), math.sin(heading0)])
+    xy, heading, s = _integrate(pieces, heading0, back, -lead_m)
+    return _with_spans(xy, heading, s, pieces, -lead_m, closed=False)
+
+
+def _road_from_specs(rng, heading0, turn_specs, turn_gaps_m, travel_m, margin_m, lead_m) -> Road:
+    n = len(turn_specs)
+    angles = np.radians([a for a, _ in turn_specs])
+    radii = np.array([r for _, r in turn_specs], float)
+    if np.any(radii <= 0) or np.any(angles == 0):
+        raise ValueError("every turn needs a radius > 0 and a non-zero angle")
+    arcs = radii * np.abs(angles)
+    if travel_m < min_travel_m(n, False, turn_specs, turn_gaps_m) - 1e-9:
+        raise ValueError(f"{travel_m:.0f} m of travel is too short for turns {turn_specs}")
+    if turn_gaps_m is None:
+        weights = rng.uniform(0.8, 1.2, size=n + 1)
+        straights = (travel_m - float(arcs.sum())) * weights / weights.sum()
+    else:
+        if len(turn_gaps_m) != max(n - 1, 0):
+            raise ValueError("turn_gaps_m needs one gap per pair of consecutive turns")
+        ends = (travel_m - float(arcs.sum()) - sum(turn_gaps_m)) * rng.uniform(0.4, 0.6)
+        rest = travel_m - float(arcs.sum()) - sum(turn_gaps_m) - ends
+        straights = np.array([ends, *turn_gaps_m, rest], float)
+    straights[0] += lead_m
+    straights[-1] += margin_m
+    pieces: list[tuple[float, float]] = []
+    for i in range(n):
+        if straights[i] > 0:  # a zero gap joins two arcs directly
+            pieces.append((float(straights[i]), 0.0))
+        pieces.append((float(arcs[i]), float(np.sign(angles[i]) / radii[i])))
     pieces.append((float(straights[-1]), 0.0))
     back = -lead_m * np.array([math.cos(heading0), math.sin(heading0)])
     xy, heading, s = _integrate(pieces, heading0, back, -lead_m)

@@ -59,3 +59,15 @@ def noisy_gps(rng: np.random.Generator, xyz_enu: np.ndarray, fps: float, white_s
     noise[:, :2] += bias_sigma_m * smooth_noise(rng, n, bias_time_s * fps, dims=2)
     noise[:, 2] = alt_sigma_m * rng.standard_normal(n)
     return xyz_enu + noise + np.asarray(bias_m, float)
+
+
+def fix_times(duration_s: float, rate_hz: float, phase_s: float,
+              dropouts: tuple[tuple[float, float], ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """A receiver's clock: fixes every 1/rate_hz from ``phase_s`` after the first frame up to the
+    last frame (so the first fix comes after the first frame and the last before the last one).
+    Returns the full grid and a mask of the fixes kept outside the (start_s, length_s) dropouts."""
+    t = phase_s + np.arange(int(math.floor((duration_s - phase_s) * rate_hz + 1e-9)) + 1) / rate_hz
+    keep = np.ones(len(t), bool)
+    for start_s, length_s in dropouts:
+        keep &= ~((t >= start_s) & (t < start_s + length_s))
+    return t, keep

@@ -11,8 +11,9 @@ from shapely import LineString
 
 from app.synth import textures
 from app.synth.layout import Layout, layout_world
-from app.synth.road import Road, build_road
+from app.synth.road import Road, TurnSpecs, build_road
 
+REPEATED_FACADES = 3  # distinct textures when facades repeat
 FACADE_TEXEL_M = 0.03
 GROUND_TEXEL_M = 0.05
 SIGN_TEXEL_M = 0.008
@@ -30,6 +31,10 @@ class WorldSpec:
     travel_m: float = 96.0  # length of road the journeys are meant to drive, from arc length 0
     n_signs: int | None = None  # default: one per ~10 m of travel, at least 8
     low_texture: bool = False
+    turn_specs: TurnSpecs | None = None  # explicit (angle_deg, radius_m) turns, see build_road
+    turn_gaps_m: tuple[float, ...] | None = None
+    density: float = 0.5  # 0 sparse suburb .. 1 dense city (layout.layout_world)
+    repeated_facades: bool = False  # a few facade textures shared by every building wall
 
 
 @dataclass(frozen=True)
@@ -87,12 +92,25 @@ class World:
     ground: Ground
 
 
+def _rngs(spec: WorldSpec) -> list[np.random.Generator]:
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(spec.world_seed).spawn(6)]
+
+
+def _road(spec: WorldSpec, rng: np.random.Generator) -> Road:
+    return build_road(rng, spec.turns, spec.loop, spec.travel_m, turn_specs=spec.turn_specs,
+                      turn_gaps_m=spec.turn_gaps_m)
+
+
+def road_for(spec: WorldSpec) -> Road:
+    """The road ``build_world(spec)`` builds, without the (slow) rest of the world."""
+    return _road(spec, _rngs(spec)[0])
+
+
 def build_world(spec: WorldSpec) -> World:
-    seeds = np.random.SeedSequence(spec.world_seed).spawn(6)
-    rngs = [np.random.default_rng(s) for s in seeds]
-    road = build_road(rngs[0], spec.turns, spec.loop, spec.travel_m)
+    rngs = _rngs(spec)
+    road = _road(spec, rngs[0])
     n_signs = spec.n_signs if spec.n_signs is not None else max(8, int(round(spec.travel_m / 10)))
-    layout = layout_world(rngs[1], rngs[2], rngs[3], road, spec.travel_m, n_signs)
+    layout = layout_world(rngs[1], rngs[2], rngs[3], road, spec.travel_m, n_signs, spec.density)
     world = World(spec=spec, road=road, surfaces=[], textures=[], sign_faces=[], signs=[],
                   ground=Ground(np.zeros(2), GROUND_TEXEL_M, -1))
     _add_walls(world, layout, rngs[4])
@@ -108,9 +126,24 @@ def _tint(rng, normal: np.ndarray, kind: str) -> tuple[float, float, float]:
     return tuple(float(x) for x in light * hue)
 
 
+def _shared_facades(world: World, layout: Layout, rng) -> list[int]:
+    """Texture indices of a few facades big enough for every near wall. A wall shows its
+    texture's top-left part, so walls of one building line look alike: repeated structure."""
+    near = [w for w in layout.walls if w.kind in ("front", "side", "back")]
+    if not near:
+        return []
+    width = max(float(np.linalg.norm(w.b_xy - w.a_xy)) for w in near)
+    height = max(w.z1_m - w.z0_m for w in near)
+    for _ in range(REPEATED_FACADES):
+        world.textures.append(textures.facade_texture(rng, width, height, FACADE_TEXEL_M,
+                                                      world.spec.low_texture))
+    return list(range(len(world.textures) - REPEATED_FACADES, len(world.textures)))
+
+
 def _add_walls(world: World, layout: Layout, rng) -> None:
     low = world.spec.low_texture
-    for wall in layout.walls:
+    shared = _shared_facades(world, layout, rng) if world.spec.repeated_facades else []
+    for k, wall in enumerate(layout.walls):
         ab = wall.b_xy - wall.a_xy
         width = float(np.linalg.norm(ab))
         if width < 1e-3:
@@ -119,12 +152,16 @@ def _add_walls(world: World, layout: Layout, rng) -> None:
         axis_v = np.array([0.0, 0.0, 1.0])
         height = wall.z1_m - wall.z0_m
         texel = FACADE_TEXEL_M if wall.kind != "far" else 2 * FACADE_TEXEL_M
-        world.textures.append(textures.facade_texture(rng, width, height, texel, low)
-                              if wall.kind in ("front", "side", "back", "far")
-                              else textures.surface_texture(rng, width, height, texel, low))
+        if shared and wall.kind in ("front", "side", "back"):
+            texture = shared[k % len(shared)]
+        else:
+            world.textures.append(textures.facade_texture(rng, width, height, texel, low)
+                                  if wall.kind in ("front", "side", "back", "far")
+                                  else textures.surface_texture(rng, width, height, texel, low))
+            texture = len(world.textures) - 1
         world.surfaces.append(Surface(
             origin_enu=np.array([wall.a_xy[0], wall.a_xy[1], wall.z0_m]), axis_u=axis_u,
-            axis_v=axis_v, size_m=(width, height), texel_m=texel, texture=len(world.textures) - 1,
+            axis_v=axis_v, size_m=(width, height), texel_m=texel, texture=texture,
             tint_bgr=_tint(rng, np.cross(axis_u, axis_v), wall.kind)))
     for roof in layout.roofs:
         w, d = float(np.linalg.norm(roof.u_xy)), float(np.linalg.norm(roof.v_xy))
