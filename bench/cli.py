@@ -1,9 +1,10 @@
-"""``signmap bench [--quick]``, ``signmap bench sensitivity`` and ``signmap bench fusion``: argument
-parsing only."""
+"""``signmap bench [--quick]``, ``signmap bench sensitivity``, ``signmap bench fusion`` and
+``signmap bench corpus``: argument parsing only."""
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 BENCH_DIR = Path(__file__).resolve().parent
@@ -50,9 +51,57 @@ def run_fusion_command(args) -> int:
     return 0
 
 
+def parse_knob(text: str) -> tuple[str, object]:
+    """``knob=value`` of ``--set``: the value as JSON (numbers, true, lists), else a string."""
+    knob, sep, value = text.partition("=")
+    if not sep or not knob:
+        raise argparse.ArgumentTypeError(f"expected knob=value, got {text!r}")
+    try:
+        return knob.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return knob.strip(), value
+
+
+def run_corpus_command(args) -> int:
+    from bench.corpus import run_corpus
+
+    try:
+        paths = run_corpus(args.corpus, args.out, half=args.half, limit=args.limit,
+                           names=[n for n in (args.names or "").split(",") if n] or None,
+                           calibrate_only=args.calibrate_only,
+                           config_overrides=dict(args.set or []), tag=args.tag,
+                           resume=args.resume)
+    except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
+        raise SystemExit(f"signmap bench corpus: {exc}") from exc
+    print(paths.markdown.read_text())
+    print(f"wrote {paths.markdown}, {paths.json}, {paths.png} and {paths.jsonl}")
+    return 0
+
+
+def _add_corpus_parser(bench_sub) -> None:
+    c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
+                             description="Runs the pipeline on the journeys of a corpus written "
+                             "by `signmap synth corpus`; writes <date>-corpus<tag>.jsonl/.md/"
+                             ".json/.png.")
+    c.add_argument("--corpus", type=Path, required=True, help="the corpus directory")
+    c.add_argument("--half", choices=("tuning", "check"), help="run one half only")
+    c.add_argument("--limit", type=int, help="the first N selected journeys only")
+    c.add_argument("--names", help="comma-separated journey names")
+    c.add_argument("--calibrate-only", action="store_true",
+                   help="drop the detections: the pipeline stops after calibrating")
+    c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
+                   help="override a PipelineConfig knob (repeatable)")
+    c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")
+    c.add_argument("--resume", action="store_true",
+                   help="continue the latest run of this tag, skipping journeys it has")
+    c.add_argument("--out", type=Path, default=argparse.SUPPRESS,
+                   help="where the results go (default bench/results)")
+    c.set_defaults(func=run_corpus_command)
+
+
 def add_parsers(sub) -> None:
-    """Add ``bench`` (with its ``sensitivity`` and ``fusion`` subcommands) to the ``signmap``
-    subparsers."""
+    """Add ``bench`` (with its ``sensitivity``, ``fusion`` and ``corpus`` subcommands) to the
+    ``signmap`` subparsers."""
     p = sub.add_parser("bench", help="benchmark accuracy and speed on synthetic journeys",
                        description="Runs the suite of synthetic journeys with our pipeline and "
                        "its baselines; prints markdown tables, writes <date>.md/.json and plots.")
@@ -66,6 +115,7 @@ def add_parsers(sub) -> None:
     f = bench_sub.add_parser("fusion", help="map error vs number of journeys fused (issue 5)")
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
+    _add_corpus_parser(bench_sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -26,6 +26,9 @@ class RunTask:
     naive: bool = False
     known_camera: CameraModel | None = None  # with config.reuse_known_calibration: skip calibrating
     max_frames: int | None = None  # run on this many first frames only
+    # Drop the detections: with no sign track process_journey returns right after calibrating,
+    # so a calibration study does not pay for ego-motion and triangulation.
+    calibrate_only: bool = False
 
 
 @dataclass
@@ -70,6 +73,8 @@ def _run_in_child(task: RunTask) -> RunOutput:
     journey = read_bundle(task.bundle, task.workdir / "bundle")
     if task.max_frames is not None:
         journey = prefix(journey, task.max_frames)
+    if task.calibrate_only:
+        journey = replace(journey, detections=[])
     read_s = time.perf_counter() - t0
     progress = _progress(task.label)
     config = PipelineConfig(**task.config)

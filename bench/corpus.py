@@ -1,0 +1,223 @@
+"""``signmap bench corpus``: the pipeline on every journey of a generated corpus (``signmap synth
+corpus``), one JSON record per journey, one report (``bench.corpus_report``).
+
+A corpus is many small journeys whose cameras, scenes and turns vary; ``corpus.json`` lists them
+with their parameters and splits them into a "tuning" half (to choose knobs on) and a "check" half
+(to confirm a choice on journeys it was not tuned on). Records are appended to a JSONL file as the
+journeys finish, so a long run that dies keeps what it had and ``resume`` continues it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from app.pipeline.config import PipelineConfig
+from app.pipeline.types import JourneyResult
+from bench import corpus_report
+from bench.metrics import evaluate_result, mappable_signs
+from bench.run_pipeline import RunOutput, RunTask, run_isolated
+from bench.runner import _meta as bench_meta  # commit, machine, pycolmap: as the other benches
+from bench.runner import finite
+
+CORPUS_FORMAT = "signmap-corpus/1"
+HALVES = ("tuning", "check")
+# What a resumed run must share with the one it continues, or its records would mix two setups.
+RUN_IDENTITY = ("corpus", "calibrate_only", "config_overrides")
+
+
+class CorpusPaths(NamedTuple):
+    markdown: Path
+    json: Path
+    png: Path
+    jsonl: Path
+
+
+def log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def load_corpus(corpus_dir: Path) -> dict:
+    index = json.loads((Path(corpus_dir) / "corpus.json").read_text())
+    if index.get("format") != CORPUS_FORMAT:
+        raise ValueError(f"{corpus_dir}/corpus.json has format {index.get('format')!r}, "
+                         f"expected {CORPUS_FORMAT!r}")
+    return index
+
+
+def select_journeys(index: dict, *, half: str | None = None, names: list[str] | None = None,
+                    limit: int | None = None) -> list[dict]:
+    """The corpus entries to run, in corpus order: ``limit`` applies last, so a resumed run with
+    the same arguments continues the same selection."""
+    journeys = index["journeys"]
+    if half is not None:
+        if half not in HALVES:
+            raise ValueError(f"half must be one of {HALVES}, not {half!r}")
+        journeys = [j for j in journeys if j.get("half") == half]
+    if names:
+        unknown = set(names) - {j["name"] for j in index["journeys"]}
+        if unknown:
+            raise ValueError(f"not in the corpus: {', '.join(sorted(unknown))}")
+        journeys = [j for j in journeys if j["name"] in set(names)]
+    return journeys[:limit] if limit is not None else journeys
+
+
+def pipeline_config(overrides: dict[str, Any]) -> PipelineConfig:
+    """The pipeline settings every bench uses (``SIGNMAP_PIPELINE__*``, else the defaults) with
+    ``overrides``. Unknown knobs are an error: pydantic would silently ignore a misspelt one."""
+    from app.settings import Settings
+
+    unknown = set(overrides) - set(PipelineConfig.model_fields)
+    if unknown:
+        raise ValueError(f"unknown pipeline knob(s): {', '.join(sorted(unknown))}")
+    return PipelineConfig(**{**Settings().pipeline.model_dump(), **overrides})
+
+
+def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, float | None]:
+    """fx, fy, k1, k2 in % of the true value (None when the true value is 0), k1, k2 also
+    absolute, cx, cy in pixels: a principal point is judged against the pixel grid, not its own
+    size."""
+    out: dict[str, float | None] = {}
+    for k in ("fx", "fy", "k1", "k2"):
+        out[f"{k}_pct"] = 100.0 * (est[k] - true[k]) / abs(true[k]) if true[k] else None
+    for k in ("k1", "k2"):
+        out[f"{k}_abs"] = est[k] - true[k]
+    for k in ("cx", "cy"):
+        out[f"{k}_px"] = est[k] - true[k]
+    return out
+
+
+def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
+    cal = result.calibration
+    stage1 = cal.stage1.params() if cal.stage1 is not None else None
+    return {"source": cal.source, "camera": cal.camera.params(),
+            "errors": camera_errors(cal.camera.params(), true_camera),
+            "stage1": stage1,
+            "stage1_errors": camera_errors(stage1, true_camera) if stage1 else None,
+            "reprojection_error_px": float(cal.reprojection_error_px),
+            "n_images": cal.n_images, "n_registered": cal.n_registered,
+            "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
+
+
+def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool,
+                   min_track_frames: int) -> dict:
+    """The JSON record of one journey's run."""
+    record = {"kind": "journey", "name": entry["name"], "half": entry.get("half"),
+              "seed": entry.get("seed"), "params": entry.get("params", {}),
+              "status": "ok" if out.result is not None else "failed", "error": out.error,
+              "n_frames": out.n_frames, "wall_s": round(out.wall_s, 2),
+              "timings_s": out.timings_s, "calib_s": out.timings_s.get("calibrate"),
+              "calibration": None}
+    if out.result is None:
+        return record
+    record["calibration"] = calibration_record(out.result, truth["camera"])
+    if not calibrate_only and truth.get("signs"):
+        ev = evaluate_result(out.result, truth)
+        record["signs"] = {**ev["signs"], "n_truth": len(truth["signs"]),
+                           "n_mappable": mappable_signs(truth, min_track_frames),
+                           "n_rejected": len(ev["rejected"])}
+        record["ate"] = ev["ate"]
+    return record
+
+
+def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
+                calibrate_only: bool) -> dict:
+    """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record."""
+    jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
+    truth = json.loads((jdir / "truth.json").read_text())
+    with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
+        task = RunTask(entry["name"], jdir / "bundle.zip", Path(tmp), config.model_dump(),
+                       calibrate_only=calibrate_only)
+        t0 = time.perf_counter()
+        try:
+            out = run_isolated(task)
+        except Exception as exc:  # noqa: BLE001 - e.g. an unreadable bundle: raised in the child
+            out = RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
+                            time.perf_counter() - t0, {}, {})
+    return journey_record(entry, out, truth, calibrate_only=calibrate_only,
+                          min_track_frames=config.min_track_frames)
+
+
+def read_jsonl(path: Path) -> tuple[dict | None, list[dict]]:
+    """(meta line, journey records) of a run's JSONL; a line cut short by a kill is skipped."""
+    meta, records = None, []
+    for line in path.read_text().splitlines():
+        try:
+            item = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if item.get("kind") == "meta":
+            meta = item
+        elif item.get("kind") == "journey":
+            records.append(item)
+    return meta, records
+
+
+def _append(path: Path, item: dict) -> None:
+    with path.open("a") as f:
+        f.write(json.dumps(finite(item), allow_nan=False) + "\n")
+
+
+def _jsonl_path(out_dir: Path, suffix: str, resume: bool) -> Path:
+    """A resumed run continues the latest JSONL of the same tag (it may have started on an
+    earlier day); a new run gets today's."""
+    if resume:
+        existing = sorted(out_dir.glob(f"*-corpus{suffix}.jsonl"))
+        if existing:
+            return existing[-1]
+    return out_dir / f"{dt.date.today().isoformat()}-corpus{suffix}.jsonl"
+
+
+def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
+               limit: int | None = None, names: list[str] | None = None,
+               calibrate_only: bool = False, config_overrides: dict[str, Any] | None = None,
+               tag: str = "", resume: bool = False) -> CorpusPaths:
+    """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
+    .jsonl (records), .md, .json and .png into ``out_dir``."""
+    corpus_dir, out_dir = Path(corpus_dir), Path(out_dir)
+    overrides = dict(config_overrides or {})
+    config = pipeline_config(overrides)
+    index = load_corpus(corpus_dir)
+    selection = select_journeys(index, half=half, names=names, limit=limit)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    suffix = f"-{tag.lstrip('-')}" if tag else ""
+    jsonl = _jsonl_path(out_dir, suffix, resume)
+    meta = {"kind": "meta", **bench_meta(False, config), "corpus": str(corpus_dir.resolve()),
+            "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
+            "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
+            "config_overrides": overrides, "tag": tag}
+    meta.pop("quick", None)
+    old_meta, records = read_jsonl(jsonl) if resume and jsonl.exists() else (None, [])
+    if old_meta is not None:
+        differs = [k for k in RUN_IDENTITY if old_meta.get(k) != finite(meta[k])]
+        if differs:
+            raise ValueError(f"{jsonl} was run with other {', '.join(differs)}: use another --tag")
+        meta = old_meta
+    else:
+        jsonl.write_text("")
+        _append(jsonl, meta)
+    done = {r["name"] for r in records}
+    t0 = time.perf_counter()
+    paths = CorpusPaths(jsonl.with_suffix(".md"), jsonl.with_suffix(".json"),
+                        jsonl.with_suffix(".png"), jsonl)
+    todo = [e for e in selection if e["name"] not in done]
+    log(f"corpus {corpus_dir}: {len(selection)} journeys selected, {len(selection) - len(todo)} "
+        f"already in {jsonl.name}")
+    for i, entry in enumerate(todo, start=1):
+        log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
+        record = run_journey(corpus_dir, entry, config, calibrate_only)
+        _append(jsonl, record)
+        records.append(record)
+        log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"
+            + (f" ({record['error']})" if record["error"] else ""))
+        # The report is rewritten after every journey, like the suite's: it is cheap.
+        corpus_report.write_report(meta, records, paths.markdown, paths.json, paths.png,
+                                   time.perf_counter() - t0)
+    corpus_report.write_report(meta, records, paths.markdown, paths.json, paths.png,
+                               time.perf_counter() - t0)
+    return paths

@@ -1,0 +1,319 @@
+"""The corpus bench's report: statistics of the journey records ``bench.corpus`` writes, as
+markdown tables (tuning and check halves side by side), JSON and one PNG.
+
+A calibration is *accepted* when the run self-calibrated; it *failed* when the run ended without
+a calibration (at the calibration stage, or before it); *later* when the run failed after the
+calibration stage (ego-motion, alignment), whose calibration is then unknown: such journeys are
+left out of the success rates (``--calibrate-only`` has none).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from bench.plots import _save, plt
+from bench.runner import finite
+from bench.tables import fmt, md_table
+
+HALVES = ("tuning", "check")
+# The acceptance bar of a calibration, and what counts as accepted but wrong.
+BAR = {"fx_pct": 1.0, "fy_pct": 1.0, "cx_px": 4.0, "cy_px": 4.0, "k1_pct": 5.0}
+WRONG_FOCAL_PCT = 3.0
+STEEP_TURN_DEG, GENTLE_TURN_DEG = 45.0, 30.0
+ERROR_KEYS = ("fx_pct", "fy_pct", "cx_px", "cy_px", "k1_pct", "k2_pct")
+LATER_STAGES = {"ego_motion", "align", "triangulate"}
+MAX_CATEGORIES = 12  # a string parameter with more values is an id, not a category
+
+
+def param(r: dict, key: str):
+    """A journey parameter; the field of view from width and fx when the corpus omits it."""
+    p = r["params"]
+    if key == "hfov_deg" and p.get(key) is None and p.get("width") and p.get("fx"):
+        return math.degrees(2 * math.atan(p["width"] / (2 * p["fx"])))
+    return p.get(key)
+
+
+def outcome(r: dict) -> str:
+    """"accepted", "failed", "later" (failed after calibrating) or "other" (finished with a
+    calibration it did not make itself)."""
+    if r["status"] == "ok":
+        return "accepted" if (r.get("calibration") or {}).get("source") == "self" else "other"
+    stage = (r.get("error") or "").partition(":")[0]
+    return "later" if stage in LATER_STAGES else "failed"
+
+
+def error(r: dict, key: str) -> float | None:
+    return ((r.get("calibration") or {}).get("errors") or {}).get(key)
+
+
+def is_wrong(r: dict) -> bool:
+    """An accepted calibration off by more than WRONG_FOCAL_PCT in fx or fy: the worst outcome,
+    as the service would use it without complaint."""
+    return outcome(r) == "accepted" and any(
+        abs(error(r, k) or 0.0) > WRONG_FOCAL_PCT for k in ("fx_pct", "fy_pct"))
+
+
+def meets_bar(r: dict, keys: Iterable[str] = tuple(BAR)) -> bool:
+    return all(error(r, k) is not None and abs(error(r, k)) <= BAR[k] for k in keys)
+
+
+def is_steep(r: dict) -> bool:
+    return (r["params"].get("max_turn_deg") or 0.0) >= STEEP_TURN_DEG
+
+
+def is_gentle(r: dict) -> bool:
+    turn = r["params"].get("max_turn_deg")
+    return r["params"].get("kind") == "gentle" or (turn is not None and turn < GENTLE_TURN_DEG)
+
+
+def quantile(values: Iterable[float | None], q: float) -> float | None:
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.percentile(vals, q)) if vals else None
+
+
+def success_rate(records: list[dict], where: Callable[[dict], bool] = lambda r: True) -> dict:
+    decided = [outcome(r) for r in records if where(r) and outcome(r) != "later"]
+    return {"accepted": decided.count("accepted"), "n": len(decided)}
+
+
+def half_summary(records: list[dict]) -> dict:
+    """Counts, success rates, error quantiles, bar shares and times of one half's records."""
+    accepted = [r for r in records if outcome(r) == "accepted"]
+    errors = {k: [abs(e) for r in accepted if (e := error(r, k)) is not None] for k in ERROR_KEYS}
+    outcomes = [outcome(r) for r in records]
+    signed = [r for r in records if r.get("signs")]
+    return {
+        "n": len(records), **{o: outcomes.count(o) for o in ("accepted", "failed", "later")},
+        "rate_all": success_rate(records), "rate_steep": success_rate(records, is_steep),
+        "rate_gentle": success_rate(records, is_gentle),
+        "median": {k: quantile(v, 50) for k, v in errors.items()},
+        "p90": {k: quantile(v, 90) for k, v in errors.items()},
+        "within": {"fx, fy ≤ 1 %": sum(meets_bar(r, ("fx_pct", "fy_pct")) for r in accepted),
+                   "cx, cy ≤ 4 px": sum(meets_bar(r, ("cx_px", "cy_px")) for r in accepted),
+                   "k1 ≤ 5 %": sum(meets_bar(r, ("k1_pct",)) for r in accepted),
+                   "all (the bar)": sum(meets_bar(r) for r in accepted)},
+        "wrong": sorted(r["name"] for r in accepted if is_wrong(r)),
+        "calib_s_median": quantile((r.get("calib_s") for r in records), 50),
+        "calib_s_p90": quantile((r.get("calib_s") for r in records), 90),
+        "wall_s_median": quantile((r.get("wall_s") for r in records), 50),
+        # Full runs only (not --calibrate-only): the sign metrics of the suite, per journey.
+        "signs_placed": sum(r["signs"]["n_signs"] for r in signed),
+        "signs_mappable": sum(r["signs"]["n_mappable"] for r in signed),
+        "abs_median_m": quantile((r["signs"]["abs_median_m"] for r in signed), 50)}
+
+
+def normalise(text: str) -> str:
+    """A message with its numbers replaced ("only 3/22 frames" -> "only N/M frames", other
+    numbers -> X), so that the same cause groups together."""
+    text = re.sub(r"\d+/\d+", "N/M", text)
+    return re.sub(r"(?<![\w.])\d+(?:\.\d+)?", "X", text)
+
+
+def failure_reasons(message: str | None) -> list[str]:
+    """The distinct normalised reasons of one failure; a self-calibration failure lists one per
+    candidate window ("frames a-b: why; ..."), each counted once per journey."""
+    if not message:
+        return ["(no message)"]
+    stage, sep, rest = message.partition(": ")
+    if not sep:
+        return [normalise(message)]
+    _, every, windows = rest.partition("failed on every turn window: ")
+    parts = windows.split("; ") if every else [rest]
+    return sorted({f"{stage}: " + normalise(re.sub(r"^frames \d+-\d+: ", "", p.strip()))
+                   for p in parts})
+
+
+def group_failures(records: list[dict]) -> list[dict]:
+    """Each reason with its count of failed journeys per half and a few names, commonest first."""
+    groups: dict[str, dict] = {}
+    for r in records:
+        if r["status"] == "ok":
+            continue
+        for reason in failure_reasons(r.get("error")):
+            g = groups.setdefault(reason, {"reason": reason, "names": [],
+                                           **{h: 0 for h in HALVES}})
+            g[r.get("half")] = g.get(r.get("half"), 0) + 1
+            g["names"].append(r["name"])
+    return sorted(groups.values(), key=lambda g: (-len(g["names"]), g["reason"]))
+
+
+def _param_kinds(records: list[dict]) -> tuple[list[str], list[str]]:
+    """(numeric, categorical) parameter names over all records."""
+    values: dict[str, list] = {}
+    for r in records:
+        for k, v in r["params"].items():
+            values.setdefault(k, []).append(v)
+    numeric, categorical = [], []
+    for k, vs in sorted(values.items()):
+        vs = [v for v in vs if v is not None]
+        if vs and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vs):
+            numeric.append(k)
+        elif vs and all(isinstance(v, (str, bool)) for v in vs) and \
+                len(set(vs)) <= MAX_CATEGORIES:
+            categorical.append(k)
+    return numeric, categorical
+
+
+def param_comparison(records: list[dict]) -> dict:
+    """What the failures share, per half: each numeric parameter's median over the failed and
+    the accepted journeys; each categorical value's failure count out of the decided journeys."""
+    numeric, categorical = _param_kinds(records)
+    out: dict = {"numeric": {}, "categorical": {}}
+    for half in HALVES:
+        rows = [r for r in records if r.get("half") == half]
+        for k in numeric:
+            out["numeric"].setdefault(k, {})[half] = {
+                o: quantile((r["params"].get(k) for r in rows if outcome(r) == o), 50)
+                for o in ("failed", "accepted")}
+        for k in categorical:
+            for r in rows:
+                if k in r["params"] and outcome(r) in ("accepted", "failed", "other"):
+                    cell = out["categorical"].setdefault(f"{k} = {r['params'][k]}", {}).setdefault(
+                        half, {"failed": 0, "n": 0})
+                    cell["failed"] += outcome(r) == "failed"
+                    cell["n"] += 1
+    return out
+
+
+def build_report(meta: dict, records: list[dict]) -> dict:
+    by_half = {h: [r for r in records if r.get("half") == h] for h in HALVES}
+    return {"meta": meta, "summary": {h: half_summary(rs) for h, rs in by_half.items()},
+            "failures": group_failures(records), "params": param_comparison(records),
+            "journeys": records}
+
+
+def _rate(rate: dict) -> str:
+    return f"{rate['accepted']}/{rate['n']} ({100 * rate['accepted'] / rate['n']:.0f} %)" \
+        if rate["n"] else "–"
+
+
+def table_summary(report: dict) -> str:
+    s = [report["summary"][h] for h in HALVES]
+    rows = [["journeys run", *(str(x["n"]) for x in s)],
+            ["accepted / failed / failed after calibrating",
+             *(f"{x['accepted']} / {x['failed']} / {x['later']}" for x in s)],
+            ["calibration success, all", *(_rate(x["rate_all"]) for x in s)],
+            [f"… max turn ≥ {STEEP_TURN_DEG:.0f}°", *(_rate(x["rate_steep"]) for x in s)],
+            [f"… gentle only (< {GENTLE_TURN_DEG:.0f}° or kind gentle)",
+             *(_rate(x["rate_gentle"]) for x in s)]]
+    for k in ERROR_KEYS:
+        name, unit = k.split("_")
+        rows.append([f"\\|{name}\\| {'%' if unit == 'pct' else 'px'} median / p90",
+                     *(f"{fmt(x['median'][k], 2)} / {fmt(x['p90'][k], 2)}" for x in s)])
+    for label in s[0]["within"]:
+        rows.append([f"accepted with {label}",
+                     *(f"{x['within'][label]}/{x['accepted']}" for x in s)])
+    rows += [[f"accepted but > {WRONG_FOCAL_PCT:.0f} % off in fx or fy",
+              *(f"**{len(x['wrong'])}**" + (f": {', '.join(x['wrong'])}" if x["wrong"] else "")
+                for x in s)],
+             ["calibrate stage s median / p90",
+              *(f"{fmt(x['calib_s_median'], 1)} / {fmt(x['calib_s_p90'], 1)}" for x in s)],
+             ["total wall s median", *(fmt(x["wall_s_median"], 1) for x in s)]]
+    if any(x["signs_mappable"] for x in s):
+        rows += [["signs placed / mappable", *(f"{x['signs_placed']}/{x['signs_mappable']}"
+                                               for x in s)],
+                 ["median of journeys' abs median sign error (m)",
+                  *(fmt(x["abs_median_m"], 3) for x in s)]]
+    return "### Summary\n\n" + md_table(["", *HALVES], rows)
+
+
+def table_failures(report: dict) -> str:
+    rows = [[g["reason"].replace("|", "/"), *(str(g.get(h, 0)) for h in HALVES),
+             ", ".join(g["names"][:4]) + (" …" if len(g["names"]) > 4 else "")]
+            for g in report["failures"]]
+    if not rows:
+        return "### Failure reasons\n\nNone."
+    return ("### Failure reasons\n\nFailed journeys per normalised reason (numbers replaced; a "
+            "journey counts once per distinct reason of its candidate windows).\n\n"
+            + md_table(["reason", *HALVES, "journeys"], rows))
+
+
+def table_params(report: dict) -> str:
+    p = report["params"]
+    num = [[k, *(fmt(v.get(h, {}).get(o), 2) for h in HALVES for o in ("failed", "accepted"))]
+           for k, v in p["numeric"].items()]
+    cat = [[k, *(f"{c['failed']}/{c['n']}" if (c := v.get(h)) else "–" for h in HALVES)]
+           for k, v in sorted(p["categorical"].items())]
+    return ("### What the failures share\n\nMedian of each numeric parameter over the failed and "
+            "the accepted journeys:\n\n"
+            + md_table(["parameter", *(f"{h} {o}" for h in HALVES for o in ("failed", "accepted"))],
+                       num)
+            + "\n\nFailed / decided journeys per value:\n\n"
+            + md_table(["parameter = value", *HALVES], cat))
+
+
+def table_journeys(report: dict) -> str:
+    rows = []
+    for r in sorted(report["journeys"], key=lambda r: (r.get("half") != "tuning", r["name"])):
+        p = r["params"]
+        result = outcome(r) + (" **WRONG**" if is_wrong(r) else "")
+        reason = "" if r["status"] == "ok" else "; ".join(failure_reasons(r.get("error")))[:70]
+        rows.append([r["name"], r.get("half"), fmt(p.get("fps"), 0), fmt(p.get("speed_mps"), 1),
+                     f"{p.get('width', '?')}×{p.get('height', '?')}", fmt(param(r, "hfov_deg"), 0),
+                     fmt(p.get("k1"), 3), fmt(p.get("max_turn_deg"), 0), result,
+                     fmt(error(r, "fx_pct"), 2), fmt(error(r, "cy_px"), 1),
+                     fmt(error(r, "k1_pct"), 1), fmt(r.get("calib_s"), 1),
+                     reason.replace("|", "/")])
+    header = ["journey", "half", "fps", "speed m/s", "W×H", "hfov °", "k1", "max turn °", "result",
+              "fx %", "cy px", "k1 %", "calib s", "reason"]
+    return "### Journeys\n\n" + md_table(header, rows)
+
+
+def render_markdown(report: dict) -> str:
+    m = report["meta"]
+    head = (f"# Signmap corpus bench {m.get('date')}{' ' + m['tag'] if m.get('tag') else ''}\n\n"
+            f"Corpus `{m.get('corpus')}` (seed {m.get('corpus_seed')}, n {m.get('corpus_n')}, "
+            f"generator {m.get('generator_version')}); commit {m.get('commit')}"
+            f"{' with uncommitted changes' if m.get('uncommitted_changes') else ''}, "
+            f"{m.get('cpus')} CPUs, pycolmap {m.get('pycolmap')}; "
+            f"{'calibration only; ' if m.get('calibrate_only') else ''}"
+            f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
+            f"this session {fmt(m.get('wall_s'), 0)} s. Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, "
+            f"|k1| ≤ 5 %.\n\n")
+    tables = (table_summary, table_failures, table_params, table_journeys)
+    return head + "\n\n".join(t(report) for t in tables) + "\n"
+
+
+def plot_corpus(records: list[dict], png: Path) -> Path:
+    """|fx error %| (log) against the largest turn and the horizontal field of view; failed
+    calibrations drawn at the top as crosses."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
+    errs = [abs(e) for r in records if (e := error(r, "fx_pct")) is not None]
+    top = max([10.0, *errs]) * 2.0
+    for ax, key, label in ((axes[0], "max_turn_deg", "largest turn (°)"),
+                           (axes[1], "hfov_deg", "horizontal field of view (°)")):
+        for half, color in zip(HALVES, ("tab:blue", "tab:orange")):
+            rows = [r for r in records if r.get("half") == half and param(r, key) is not None]
+            ok = [r for r in rows if outcome(r) == "accepted" and error(r, "fx_pct") is not None]
+            bad = [r for r in rows if outcome(r) == "failed"]
+            ax.plot([param(r, key) for r in ok],
+                    [max(abs(error(r, "fx_pct")), 1e-3) for r in ok], "o", color=color,
+                    ms=5, mfc="none", label=f"{half}: accepted")
+            ax.plot([param(r, key) for r in bad], [top] * len(bad), "x", color=color,
+                    ms=7, label=f"{half}: failed (drawn at the top)")
+        ax.axhline(BAR["fx_pct"], color="tab:green", lw=0.8, ls="--", label="bar 1 %")
+        ax.axhline(WRONG_FOCAL_PCT, color="tab:red", lw=0.8, ls=":", label="wrong > 3 %")
+        ax.set_yscale("log")
+        ax.set_xlabel(label)
+        ax.grid(True, lw=0.3, which="both")
+    axes[0].set_ylabel("|fx error| (%)")
+    axes[0].legend(fontsize=7, loc="lower left")
+    fig.suptitle("Self-calibration: focal length error per corpus journey")
+    return _save(fig, png)
+
+
+def write_report(meta: dict, records: list[dict], md_path: Path, json_path: Path, png: Path,
+                 wall_s: float) -> str:
+    """Write the markdown, JSON and PNG; return the markdown."""
+    report = build_report({**meta, "wall_s": round(wall_s, 1), "plot": png.name}, records)
+    md = render_markdown(report)
+    md_path.write_text(md)
+    json_path.write_text(json.dumps(finite(report), indent=1, allow_nan=False))
+    plot_corpus(records, png)
+    return md

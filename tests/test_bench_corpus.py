@@ -1,0 +1,209 @@
+"""The corpus bench: its report on hand-made journey records, JSONL resume and CLI parsing, and
+one real calibration-only run on a one-journey corpus (slow: real COLMAP)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from app.synth.journey import SynthConfig, write_bundle
+from bench import cli as bench_cli
+from bench import corpus_report as cr
+from bench.corpus import (camera_errors, load_corpus, read_jsonl, run_corpus,
+                          select_journeys)
+
+TRUE = {"fx": 1000.0, "fy": 1000.0, "cx": 640.0, "cy": 360.0, "k1": -0.2, "k2": 0.0}
+
+
+def _record(name: str, half: str, *, fx_pct: float | None = 0.5, error: str | None = None,
+            max_turn: float = 90.0, kind: str = "turn", hfov: float = 60.0, fps: float = 10.0,
+            calib_s: float | None = 20.0, cy_px: float = 1.0, k1_pct: float = 2.0) -> dict:
+    params = {"max_turn_deg": max_turn, "kind": kind, "hfov_deg": hfov, "fps": fps,
+              "width": 1280, "height": 720, "k1": -0.2, "scene": "town"}
+    rec = {"kind": "journey", "name": name, "half": half, "params": params,
+           "status": "failed" if error else "ok", "error": error, "wall_s": 30.0,
+           "calib_s": None if error else calib_s, "calibration": None}
+    if not error:
+        errors = {"fx_pct": fx_pct, "fy_pct": fx_pct, "cx_px": -1.0, "cy_px": cy_px,
+                  "k1_pct": k1_pct, "k2_pct": None, "k1_abs": 0.004, "k2_abs": 0.01}
+        rec["calibration"] = {"source": "self", "errors": errors}
+    return rec
+
+
+CALIB_FAIL = ("calibrate: self-calibration failed on every turn window: frames 10-53: only 3/22 "
+              "frames registered; frames 80-123: fx/fy = 1.14 is implausible")
+NO_TURN = ("calibrate: the journey has no turn (RDP found no heading change of >= 30 deg on the "
+           "GPS track); a straight road cannot calibrate the camera. Upload a journey with a "
+           "turn first, or supply a calibration for this camera_id")
+
+
+def _records() -> list[dict]:
+    return [_record("t1", "tuning", fx_pct=0.2, fps=10),
+            _record("t2", "tuning", fx_pct=-0.8, fps=10, calib_s=40.0),
+            _record("t3", "tuning", fx_pct=4.0, fps=10, calib_s=60.0),  # accepted but wrong
+            _record("t4", "tuning", error=CALIB_FAIL, max_turn=25.0, kind="gentle", fps=5,
+                    hfov=100.0),
+            _record("c1", "check", fx_pct=0.1, cy_px=6.0),
+            _record("c2", "check", error="calibrate: self-calibration failed on every turn "
+                    "window: frames 0-43: only 12/22 frames registered", max_turn=50.0, fps=5),
+            _record("c3", "check", error="ego_motion: no window around the signs could be "
+                    "reconstructed: too few frames registered")]
+
+
+def test_camera_errors_units():
+    est = {**TRUE, "fx": 1010.0, "cx": 643.0, "k1": -0.21, "k2": 0.05}
+    e = camera_errors(est, TRUE)
+    assert e["fx_pct"] == pytest.approx(1.0)
+    assert e["cx_px"] == pytest.approx(3.0)
+    assert e["k1_pct"] == pytest.approx(-5.0)  # relative to |true|: k1 more negative
+    assert e["k1_abs"] == pytest.approx(-0.01)
+    assert e["k2_pct"] is None and e["k2_abs"] == pytest.approx(0.05)  # true k2 = 0
+
+
+def test_failure_reasons_are_normalised_and_grouped():
+    assert cr.failure_reasons(CALIB_FAIL) == ["calibrate: fx/fy = X is implausible",
+                                              "calibrate: only N/M frames registered"]
+    assert cr.normalise("distortion k1=-0.52, k2=1.60 is implausible") == \
+        "distortion k1=-X, k2=X is implausible"
+    assert cr.failure_reasons(NO_TURN)[0].startswith("calibrate: the journey has no turn "
+                                                     "(RDP found no heading change of >= X deg")
+    groups = {g["reason"]: g for g in cr.group_failures(_records())}
+    registered = groups["calibrate: only N/M frames registered"]
+    assert (registered["tuning"], registered["check"]) == (1, 1)
+    assert registered["names"] == ["t4", "c2"]
+    assert cr.group_failures(_records())[0] is not None
+    assert len(groups) == 3
+
+
+def test_outcomes_and_success_rates():
+    recs = {r["name"]: r for r in _records()}
+    assert [cr.outcome(recs[n]) for n in ("t1", "t4", "c3")] == ["accepted", "failed", "later"]
+    assert cr.is_wrong(recs["t3"]) and not cr.is_wrong(recs["t2"])
+    assert cr.is_gentle(recs["t4"]) and not cr.is_steep(recs["t4"])
+    assert cr.is_steep(recs["c2"]) and not cr.is_gentle(recs["c2"])
+    s = cr.half_summary([r for r in _records() if r["half"] == "tuning"])
+    assert s["rate_all"] == {"accepted": 3, "n": 4}
+    assert s["rate_steep"] == {"accepted": 3, "n": 3}
+    assert s["rate_gentle"] == {"accepted": 0, "n": 1}
+    assert s["wrong"] == ["t3"]
+    c = cr.half_summary([r for r in _records() if r["half"] == "check"])
+    assert c["rate_all"] == {"accepted": 1, "n": 2}  # the ego-motion failure is not counted
+    assert (c["failed"], c["later"]) == (1, 1)
+    assert c["within"]["cx, cy ≤ 4 px"] == 0 and c["within"]["fx, fy ≤ 1 %"] == 1
+
+
+def test_quantiles_over_accepted_calibrations():
+    s = cr.half_summary([r for r in _records() if r["half"] == "tuning"])
+    assert s["median"]["fx_pct"] == pytest.approx(0.8)  # |0.2|, |-0.8|, |4.0|
+    assert s["p90"]["fx_pct"] == pytest.approx(0.8 + 0.8 * 3.2)  # numpy's linear percentile
+    assert s["median"]["k2_pct"] is None  # no true k2 to be relative to
+    assert s["calib_s_median"] == pytest.approx(40.0)
+    assert s["within"]["all (the bar)"] == 2
+    assert cr.quantile([None, float("nan"), 1.0, 3.0], 50) == pytest.approx(2.0)
+
+
+def test_sign_rows_only_on_full_runs():
+    records = _records()
+    records[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "abs_median_m": 0.4}
+    records[1]["signs"] = {"n_signs": 3, "n_mappable": 3, "abs_median_m": 0.2}
+    s = cr.half_summary(records[:4])
+    assert (s["signs_placed"], s["signs_mappable"]) == (8, 9)
+    assert s["abs_median_m"] == pytest.approx(0.3)
+    assert "signs placed / mappable | 8/9 | 0/0" in cr.table_summary(cr.build_report({}, records))
+    assert "signs placed" not in cr.table_summary(cr.build_report({}, _records()))
+
+
+def test_param_comparison():
+    p = cr.param_comparison(_records())
+    assert p["numeric"]["fps"]["tuning"] == {"failed": 5.0, "accepted": 10.0}
+    assert p["numeric"]["hfov_deg"]["tuning"]["failed"] == 100.0
+    assert p["numeric"]["fps"]["check"] == {"failed": 5.0, "accepted": 10.0}
+    assert p["categorical"]["kind = gentle"]["tuning"] == {"failed": 1, "n": 1}
+    assert p["categorical"]["kind = turn"]["check"] == {"failed": 1, "n": 2}  # c3 undecided
+    assert "scene = town" in p["categorical"]
+
+
+def test_report_markdown_json_and_plot(tmp_path: Path):
+    md = cr.write_report({"date": "2026-11-24", "tag": "x", "calibrate_only": True}, _records(),
+                         tmp_path / "r.md", tmp_path / "r.json", tmp_path / "r.png", 12.0)
+    for text in ("### Summary", "| tuning | check |", "3/4 (75 %)", "**1**: t3",
+                 "only N/M frames registered", "kind = gentle", "t3 | tuning", "**WRONG**"):
+        assert text in md
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["summary"]["tuning"]["wrong"] == ["t3"]
+    assert (tmp_path / "r.png").stat().st_size > 10_000
+
+
+def test_select_and_resume_file(tmp_path: Path):
+    index = {"format": "signmap-corpus/1", "journeys": [
+        {"name": f"c{i:04d}", "half": "tuning" if i % 2 else "check"} for i in range(6)]}
+    assert [j["name"] for j in select_journeys(index, half="check", limit=2)] == ["c0000",
+                                                                               "c0002"]
+    assert [j["name"] for j in select_journeys(index, names=["c0003"])] == ["c0003"]
+    with pytest.raises(ValueError):
+        select_journeys(index, names=["nope"])
+    (tmp_path / "corpus.json").write_text(json.dumps({**index, "format": "other"}))
+    with pytest.raises(ValueError):
+        load_corpus(tmp_path)
+    jsonl = tmp_path / "r.jsonl"
+    jsonl.write_text('{"kind": "meta", "tag": ""}\n{"kind": "journey", "name": "a"}\n{"kind": "jo')
+    meta, records = read_jsonl(jsonl)  # the last line was cut short by a kill
+    assert meta["tag"] == "" and [r["name"] for r in records] == ["a"]
+
+
+def test_cli_parses_corpus_options(tmp_path: Path):
+    parser = argparse.ArgumentParser()
+    bench_cli.add_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["bench", "corpus", "--corpus", str(tmp_path), "--half", "check",
+                              "--set", "calib_max_candidates=3", "--set", "calib_front_end=klt",
+                              "--names", "a,b", "--calibrate-only", "--resume", "--tag", "t"])
+    assert args.func is bench_cli.run_corpus_command
+    assert dict(args.set) == {"calib_max_candidates": 3, "calib_front_end": "klt"}
+    assert args.out == bench_cli.BENCH_DIR / "results" and args.calibrate_only and args.resume
+    with pytest.raises(SystemExit):
+        parser.parse_args(["bench", "corpus", "--corpus", "x", "--set", "novalue"])
+
+
+def test_unknown_knob_is_an_error(tmp_path: Path):
+    with pytest.raises(ValueError, match="unknown pipeline knob"):
+        run_corpus(tmp_path, tmp_path / "out", config_overrides={"calib_fram_step": 3})
+
+
+def _fake_corpus(root: Path) -> Path:
+    """One 70-frame, one-turn journey laid out as ``signmap synth corpus`` writes a corpus."""
+    cam = SynthConfig().camera
+    write_bundle(SynthConfig(n_frames=70, turns=1), root / "c0000")
+    params = {"fps": 10.0, "speed_mps": 8.0, "kind": "turn", "width": cam.width,
+              "height": cam.height, **cam.params(), "n_frames": 70, "max_turn_deg": 90.0,
+              "hfov_deg": math.degrees(2 * math.atan(cam.width / (2 * cam.fx)))}
+    (root / "corpus.json").write_text(json.dumps({
+        "format": "signmap-corpus/1", "seed": 0, "n": 1, "generator_version": "test",
+        "journeys": [{"name": "c0000", "seed": 0, "half": "tuning", "dir": "c0000",
+                      "params": params}]}))
+    return root
+
+
+@pytest.mark.slow
+def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):
+    corpus = _fake_corpus(tmp_path / "corpus")
+    paths = run_corpus(corpus, tmp_path / "out", calibrate_only=True, limit=1, tag="test")
+    assert paths.jsonl.name.endswith("-corpus-test.jsonl")
+    meta, records = read_jsonl(paths.jsonl)
+    assert meta["calibrate_only"] and len(records) == 1
+    rec = records[0]
+    assert rec["status"] in ("ok", "failed")
+    if rec["status"] == "ok":
+        assert rec["calibration"]["source"] == "self"
+        assert math.isfinite(rec["calibration"]["errors"]["fx_pct"])
+        assert "calibrate" in rec["timings_s"] and "signs" not in rec  # stopped after calibrating
+    else:
+        assert rec["error"]
+    assert "| c0000 | tuning |" in paths.markdown.read_text()
+    # A resumed run skips the journey it already has.
+    again = run_corpus(corpus, tmp_path / "out", calibrate_only=True, limit=1, tag="test",
+                       resume=True)
+    assert again.jsonl == paths.jsonl and len(read_jsonl(paths.jsonl)[1]) == 1
