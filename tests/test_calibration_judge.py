@@ -40,15 +40,58 @@ def test_a_poor_window_is_rejected_with_its_reason(kwargs, reason):
     assert reason in _judge(_window(TRUE, **kwargs), PipelineConfig())
 
 
+def _track(step_m: float, n: int, stop_at: int | None = None, stop_frames: int = 0) -> np.ndarray:
+    """Metres travelled per frame at ``step_m`` a frame, standing still ``stop_frames`` frames."""
+    steps = np.full(n, step_m)
+    steps[0] = 0.0
+    if stop_at is not None:
+        steps[stop_at:stop_at + stop_frames] = 0.0
+    return np.cumsum(steps)
+
+
 def test_candidate_windows_span_the_turn_first_then_shift_and_stay_inside_the_journey():
     from app.pipeline.calibration import candidate_windows
     from app.pipeline.turns import TurnWindow
 
     cfg = PipelineConfig()
-    turn = TurnWindow(start=0, end=70, vertex=37, angle_deg=99.0, rotation_deg=99.0)
-    windows = candidate_windows([turn], 70, cfg)
-    assert windows[0] == (37 - cfg.calib_window_frames // 2, 37 + cfg.calib_window_frames // 2)
-    assert len(windows) == len(set(windows)) <= cfg.calib_max_candidates
-    assert all(0 <= a < b <= 70 and b - a == cfg.calib_window_frames for a, b in windows)
-    # A journey shorter than a window is mapped whole.
-    assert candidate_windows([turn], 20, cfg) == [(0, 20)]
+    s_m = _track(0.8, 100)
+    turn = TurnWindow(start=10, end=90, vertex=50, angle_deg=99.0, rotation_deg=99.0)
+    windows = candidate_windows([turn], s_m, cfg)
+    first = windows[0].frame_idx
+    assert len(first) == cfg.calib_images
+    # Centred on the turn, spanning calib_window_m of road.
+    assert abs(s_m[first].mean() - s_m[50]) < 1.0
+    assert s_m[first[-1]] - s_m[first[0]] == pytest.approx(cfg.calib_window_m, abs=1.0)
+    assert 1 < len(windows) <= cfg.calib_max_candidates
+    assert len({tuple(w.frame_idx) for w in windows}) == len(windows)
+    assert all(0 <= w.frame_idx[0] and w.frame_idx[-1] < 100 for w in windows)
+
+
+@pytest.mark.parametrize("step_m", [0.2, 0.8, 2.4])
+def test_candidate_windows_span_the_same_road_whatever_the_frame_rate_and_speed(step_m):
+    from app.pipeline.calibration import candidate_windows
+    from app.pipeline.turns import TurnWindow
+
+    cfg = PipelineConfig()
+    n = int(120 / step_m)
+    s_m = _track(step_m, n)
+    turn = TurnWindow(start=0, end=n, vertex=n // 2, angle_deg=90.0, rotation_deg=90.0)
+    frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
+    assert s_m[frames[-1]] - s_m[frames[0]] == pytest.approx(cfg.calib_window_m, abs=step_m)
+    assert len(frames) == min(cfg.calib_images, int(cfg.calib_window_m / step_m) + 1)
+
+
+def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
+    from app.pipeline.calibration import candidate_windows
+    from app.pipeline.turns import TurnWindow
+
+    cfg = PipelineConfig()
+    s_m = _track(0.5, 200, stop_at=95, stop_frames=40)
+    turn = TurnWindow(start=0, end=200, vertex=100, angle_deg=90.0, rotation_deg=90.0)
+    frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
+    assert np.all(np.diff(s_m[frames]) > 0)  # no two images from where the car stood
+    # 5 m between frames (5 Hz at 25 m/s): at least calib_min_images, over a longer stretch.
+    s_m = _track(5.0, 40)
+    turn = TurnWindow(start=0, end=40, vertex=20, angle_deg=90.0, rotation_deg=90.0)
+    frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
+    assert len(frames) == cfg.calib_min_images

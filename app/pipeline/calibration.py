@@ -31,26 +31,60 @@ from app.pipeline.types import Calibration, CameraModel, PipelineError
 log = logging.getLogger(__name__)
 STAGE = "calibrate"
 
-# Candidate windows as (start, end) offsets from the turn vertex, in units of the window length:
-# centred first, then shifted towards the approach and the exit of the turn. A window spans
-# ``calib_window_frames`` journey frames and maps every ``calib_frame_step``-th: a window of 30
-# consecutive frames centred on the turn is mostly rotation with little baseline, and stage 2 then
-# fell into wrong minima on 4 of 5 candidates (turn-70, 2026-11-23); 44 frames at step 2 (22 images)
-# calibrated to < 1 % on its first candidate in each of the journeys tried, and maps faster.
+# Candidate windows as offsets of their start from the turn vertex, in units of the window's span:
+# centred first, then shifted towards the approach and the exit of the turn. A window centred on
+# the turn is mostly rotation with little baseline, and stage 2 then fell into wrong minima
+# (turn-70, 2026-11-23); a window as long as the turn's approach or exit mixes in baseline.
 CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17)
 
 
-def candidate_windows(turns: list[TurnWindow], n_frames: int,
-                      cfg: PipelineConfig) -> list[tuple[int, int]]:
-    """Frame ranges [start, end) to try, strongest turn first, at most ``calib_max_candidates``."""
-    size = min(cfg.calib_window_frames, n_frames)
-    ranked = sorted(turns, key=lambda t: -max(abs(t.angle_deg), getattr(t, "rotation_deg", 0.0)))
-    out: list[tuple[int, int]] = []
+@dataclass(frozen=True)
+class CalibrationWindow:
+    """One candidate: ``frame_idx`` (K,) sorted journey frame indices to map, around the turn
+    whose RDP vertex is frame ``vertex``."""
+
+    frame_idx: np.ndarray
+    vertex: int
+
+    @property
+    def label(self) -> str:
+        return f"frames {int(self.frame_idx[0])}-{int(self.frame_idx[-1])}"
+
+
+def _frames_by_distance(s_m: np.ndarray, lo_m: float, hi_m: float, n_images: int) -> np.ndarray:
+    """Up to ``n_images`` frames spread evenly by distance travelled over [lo_m, hi_m]; a frame
+    is taken once however long the car stands on it."""
+    targets_m = np.linspace(lo_m, hi_m, n_images)
+    idx = np.clip(np.searchsorted(s_m, targets_m, side="left"), 0, len(s_m) - 1)
+    return np.unique(idx)
+
+
+def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray,
+                      cfg: PipelineConfig) -> list[CalibrationWindow]:
+    """Candidate windows, strongest turn first, at most ``calib_max_candidates``.
+
+    ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``). A window spans
+    ``calib_window_m`` of road, or more where frames are so far apart that it would hold fewer
+    than ``calib_min_images``; its ``calib_images`` frames are spread by distance, not by frame
+    count, so capture rate, speed and stops do not change what a window sees (a fixed 44 frames
+    spanned 13 m at 20 Hz and 6 m/s, where only 3 of 22 images registered, and 105 m at 5 Hz and
+    12 m/s; 2026-11-24)."""
+    s_m = np.asarray(s_m, float)
+    ranked = sorted(turns, key=lambda t: -max(abs(t.angle_deg), t.rotation_deg))
+    out: list[CalibrationWindow] = []
+    seen: set[tuple[int, ...]] = set()
     for offset in CANDIDATE_OFFSETS:
         for turn in ranked:
-            start = int(np.clip(turn.vertex + round(offset * size), 0, n_frames - size))
-            if (start, start + size) not in out:
-                out.append((start, start + size))
+            moving = np.diff(s_m[turn.start:turn.end])
+            step_m = float(np.median(moving[moving > 0])) if np.any(moving > 0) else 0.0
+            span_m = min(max(cfg.calib_window_m, (cfg.calib_min_images - 1) * step_m),
+                         float(s_m[-1] - s_m[0]))
+            lo_m = float(np.clip(s_m[turn.vertex] + offset * span_m, s_m[0], s_m[-1] - span_m))
+            frames = _frames_by_distance(s_m, lo_m, lo_m + span_m, cfg.calib_images)
+            key = tuple(frames.tolist())
+            if len(frames) >= cfg.calib_min_images and key not in seen:
+                seen.add(key)
+                out.append(CalibrationWindow(frames, turn.vertex))
     return out[: cfg.calib_max_candidates]
 
 
@@ -103,6 +137,14 @@ def _judge(res: WindowResult, cfg: PipelineConfig) -> str | None:
     return _implausible(res.camera)
 
 
+def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
+    """Whether two windows' calibrations are the same camera within what stage 2 resolves."""
+    tol = cfg.calib_agreement
+    return (abs(a.fx / b.fx - 1.0) <= tol and abs(a.fy / b.fy - 1.0) <= tol
+            and abs(a.cx - b.cx) <= tol * a.width and abs(a.cy - b.cy) <= tol * a.width
+            and abs(a.k1 - b.k1) <= max(0.02, 10 * tol * abs(a.k1)))
+
+
 def no_turn_error(cfg: PipelineConfig) -> PipelineError:
     return PipelineError(STAGE, "the journey has no turn (RDP found no heading change of "
                          f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track); a straight road "
@@ -110,31 +152,45 @@ def no_turn_error(cfg: PipelineConfig) -> PipelineError:
                          "supply a calibration for this camera_id")
 
 
-def self_calibrate(turns: list[TurnWindow], frame_names: list[str], cfg: PipelineConfig,
-                   map_window: Callable[[WindowRequest], WindowResult], *,
-                   hint: CameraModel | None = None, width: int, height: int) -> Calibration:
-    """Try candidate windows until one calibrates well; raise PipelineError with every reason."""
-    windows = candidate_windows(turns, len(frame_names), cfg)
+def self_calibrate(windows: list[CalibrationWindow], frame_names: list[str], cfg: PipelineConfig,
+                   map_window: Callable[[CalibrationWindow, WindowRequest], WindowResult], *,
+                   hint: CameraModel | None = None, width: int, height: int,
+                   on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None
+                   ) -> Calibration:
+    """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
+    reason. ``on_candidate(k, total, window)`` is called before the k-th is mapped."""
     if not windows:
         raise no_turn_error(cfg)
     start = initial_camera(width, height, cfg, hint)
     reasons, good = [], []
-    for a, b in windows:
-        res = map_window(WindowRequest(frame_names[a:b:cfg.calib_frame_step], start, calibrate=True))
+    for k, window in enumerate(windows):
+        if on_candidate is not None:
+            on_candidate(k, len(windows), window)
+        names = [frame_names[i] for i in window.frame_idx]
+        res = map_window(window, WindowRequest(names, start, calibrate=True))
         why = _judge(res, cfg)
-        log.info("calibration candidate frames %d-%d: %s", a, b - 1,
+        log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
-            reasons.append(f"frames {a}-{b - 1}: {why}")
+            reasons.append(f"{window.label}: {why}")
             continue
-        good.append(((a, b), res))
+        agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)]
+        good.append((window, res))
         if res.reprojection_error_px <= cfg.calib_accept_reprojection_px:
+            break
+        if agreeing:
+            # Two windows of other frames that land on the same camera are evidence a wrong
+            # minimum cannot fake; blurred or compressed frames never reach the sharp-image
+            # error that ends the search on its own, and trying every candidate cost 84 s.
+            good = agreeing + [good[-1]]
+            log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
             break
     if not good:
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
                             + "; ".join(reasons))
-    (a, b), best = min(good, key=lambda g: g[1].reprojection_error_px)
+    window, best = min(good, key=lambda g: g[1].reprojection_error_px)
     return Calibration(camera=best.camera, source="self", stage1=best.stage1_camera,
                        n_images=best.n_input, n_registered=len(best.image_names),
                        reprojection_error_px=best.reprojection_error_px,
-                       rotation_deg=rotation_covered_deg(best.T_model_cam), windows=[(a, b)])
+                       rotation_deg=rotation_covered_deg(best.T_model_cam),
+                       windows=[(int(window.frame_idx[0]), int(window.frame_idx[-1]) + 1)])

@@ -26,8 +26,30 @@ def _to_opencv(pycolmap, cam) -> None:
     cam.params = np.array(params, dtype=float)
 
 
+def _aspect_prior(pyceres, params: np.ndarray, sigma: float):
+    """A Gaussian prior on an OPENCV parameter block that only says fx = fy to within ``sigma``
+    (relative): it is flat (variance ``_FLAT``) in every other direction. Car footage rotates about
+    one axis, which leaves fy (and cy) in a shallow valley that the data alone does not pin down.
+    A C++ cost (not a Python one): COLMAP's solve holds the GIL, and a Python callback from a
+    Ceres worker thread deadlocked."""
+    f = 0.5 * (params[0] + params[1])
+    mean = np.array(params, dtype=float)
+    mean[:2] = f
+    along = np.array([1.0, 1.0]) / np.sqrt(2.0)
+    across = np.array([1.0, -1.0]) / np.sqrt(2.0)
+    cov = np.eye(len(params)) * _FLAT * f * f
+    cov[:2, :2] = (_FLAT * f * f * np.outer(along, along)
+                   + 0.5 * (sigma * f) ** 2 * np.outer(across, across))
+    return pyceres.factors.NormalPrior(mean, cov)
+
+
+# Relative variance of the directions the aspect prior leaves free: 1e8 makes its pull on them
+# ~1e-8 of one pixel's residual.
+_FLAT = 1e8
+
+
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
-                   function_tolerance: float) -> None:
+                   function_tolerance: float, aspect_sigma: float = 0.0) -> None:
     import pyceres
 
     options = pycolmap.BundleAdjustmentOptions()
@@ -56,13 +78,19 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
             problem.set_manifold(params, manifold)
             manifolds.append(manifold)
             params_blocks.append(params)
+            if aspect_sigma > 0:
+                # The prior weighs like one observation against thousands: it only decides
+                # where the reprojection error is flat.
+                prior = _aspect_prior(pyceres, params, aspect_sigma)
+                problem.add_residual_block(prior, None, [params])
+                manifolds.append(prior)
     adjuster.solve()
     rec.update_point_3d_errors()
     del manifolds, params_blocks
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
-                          function_tolerance: float = 1e-6) -> None:
+                          function_tolerance: float = 1e-6, aspect_sigma: float = 0.0) -> None:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
@@ -74,6 +102,8 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     ``function_tolerance``: Ceres stops when an iteration lowers the cost by less than this
     fraction. COLMAP's 0 ran both passes to 100 iterations: 7.7 s on turn-70's 22 images, 2.4 s
     at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23).
+
+    ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
@@ -81,7 +111,7 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                    function_tolerance=function_tolerance)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                   function_tolerance=function_tolerance)
+                   function_tolerance=function_tolerance, aspect_sigma=aspect_sigma)
     _filter_observations(pycolmap, rec, filter_max_error_px)
 
 

@@ -42,6 +42,7 @@ class FeatureOptions:
     ba_max_refinements: int = 1
     ba_function_tolerance: float = 1e-6
     map_workers: int = 2
+    aspect_prior_sigma: float = 0.0  # stage 2: prior fx = fy with this relative sigma (0: none)
 
 
 @dataclass(frozen=True)
@@ -308,7 +309,11 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     options = pycolmap.IncrementalPipelineOptions()
     options.image_names = list(window.image_names)
     options.num_threads = job.features.threads
-    options.multiple_models = False
+    # Free-intrinsics mapping sometimes starts from a pair that drifts f and k1 away, registers a
+    # few images and stops; the next model, from the images left, is then usually right (22 of
+    # 22 images after a 4-image model with f = 30396 px, issue 11). Fixed intrinsics need one.
+    options.multiple_models = window.calibrate
+    options.max_num_models = 3
     options.extract_colors = False
     # Global BA less often than COLMAP's default (every 10 % growth): windows are short and
     # local BA keeps them consistent; measured ~20 % faster with the same result.
@@ -368,7 +373,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     if window.calibrate:
         from app.pipeline.colmap_refine import refine_all_intrinsics
         refine_all_intrinsics(pycolmap, rec,
-                              function_tolerance=job.features.ba_function_tolerance)
+                              function_tolerance=job.features.ba_function_tolerance,
+                              aspect_sigma=job.features.aspect_prior_sigma)
     return _window_result(rec, window, stage1 if window.calibrate else None)
 
 

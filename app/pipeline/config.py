@@ -17,9 +17,13 @@ class PipelineConfig(BaseModel):
     rdp_tolerance_m: float = Field(2.0, description="RDP tolerance on the metric GPS track")
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
-    calib_window_frames: int = Field(44, description="journey frames a calibration candidate spans")
-    calib_frame_step: int = Field(
-        2, description="map every n-th frame of a calibration window (wider baselines, fewer images)")
+    # 44 frames at 10 Hz and 8 m/s (turn-70) spanned 35 m: the span that calibrated there.
+    calib_window_m: float = Field(36.0, description="road a calibration candidate spans, metres")
+    calib_images: int = Field(22, description="images a calibration candidate maps, spread by "
+                              "distance travelled")
+    calib_min_images: int = Field(
+        12, description="fewest images a candidate maps: where frames are further apart than "
+        "calib_window_m / calib_min_images, the window grows")
     calib_max_candidates: int = Field(5, description="candidate windows tried per journey")
     # KLT tracks calibrated turn-70 3.5x faster than SIFT but less accurately (0.33 px instead of
     # 0.14 px; fy 0.8 %, cy 1.1 %, k2 2.3 % off instead of 0.4, 0.8, 0.2 %; 2026-11-23): the
@@ -31,6 +35,12 @@ class PipelineConfig(BaseModel):
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     calib_min_registered_ratio: float = 0.9
+    calib_aspect_prior_sigma: float = Field(
+        0.0, description="stage 2: prior that pixels are square (fx = fy), relative sigma; "
+        "0 leaves fx and fy to the data alone")
+    calib_agreement: float = Field(
+        0.015, description="two candidate windows whose focal lengths agree to this fraction "
+        "(principal points to this fraction of the width) end the search")
 
     # Feature extraction / matching (COLMAP).
     sift_max_features: int = 2048

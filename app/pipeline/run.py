@@ -84,7 +84,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         turn_windows = turns.find_turns(xyz_gps[:, :2], tolerance_m=config.rdp_tolerance_m,
                                         min_angle_deg=config.turn_min_angle_deg,
                                         window_m=config.turn_window_m)
-        calib_windows = calibration.candidate_windows(turn_windows, n, config)
+        s_m = turns.track_length_m(xyz_gps[:, :2], tolerance_m=config.rdp_tolerance_m)
+        calib_windows = calibration.candidate_windows(turn_windows, s_m, config)
         if known_camera is not None and config.reuse_known_calibration:
             calib_windows = []
         # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
@@ -103,7 +104,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
              n, len(turn_windows), len(tracks), len(ego_windows))
     off_grid = ego_motion.off_grid_frames(tracks, config.ego_frame_step, config.min_track_frames)
     clock.weights = _stage_weights(
-        len(range(0, config.calib_window_frames, config.calib_frame_step)) * bool(calib_windows),
+        config.calib_images * bool(calib_windows),
         len(ego_motion.mapped_frames(ego_windows, config.ego_frame_step, off_grid)))
     if not calib_windows and known_camera is None:
         raise calibration.no_turn_error(config)
@@ -112,13 +113,19 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         return StageSfm(workdir / f"sfm_{name}", journey, windows, step, front_end, config,
                         xyz_gps, verbose, **extra)
 
-    def calibrate_window(request: colmap_sfm.WindowRequest) -> colmap_sfm.WindowResult:
+    def calibrate_window(window: calibration.CalibrationWindow,
+                         request: colmap_sfm.WindowRequest) -> colmap_sfm.WindowResult:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
         # the first candidate usually succeeds, and the others' features would be wasted.
-        first, last = names.index(request.image_names[0]), names.index(request.image_names[-1])
-        stage = sfm_stage(f"calibrate_{first}", [(first, last + 1)], config.calib_frame_step,
-                          config.calib_front_end)
+        step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
+        stage = sfm_stage(f"calibrate_{window.frame_idx[0]}_{window.frame_idx[-1]}", [], step,
+                          config.calib_front_end, frames=window.frame_idx)
         return stage.run([request], None)[0]
+
+    def on_candidate(k: int, total: int, window: calibration.CalibrationWindow) -> None:
+        # Most journeys stop at the first candidate: each later one halves what is left.
+        clock.within("calibrate", 1.0 - 0.5**k,
+                     f"candidate window {k + 1} of at most {total} ({window.label})")
 
     ego_sfm = sfm_stage("ego", ego_windows, config.ego_frame_step, config.ego_front_end,
                         extra=off_grid)
@@ -127,8 +134,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
             background.submit(ego_sfm.correspondences)
         with clock.stage("calibrate", f"{len(calib_windows)} candidate windows"):
-            calib = _calibrate(journey, turn_windows, calib_windows, names, config,
-                               calibrate_window, known_camera)
+            calib = _calibrate(journey, calib_windows, names, config, calibrate_window,
+                               on_candidate, known_camera)
     camera = calib.camera
 
     if not tracks:
@@ -171,17 +178,16 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                          origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
 
 
-def _calibrate(journey: Journey, turn_windows, calib_windows, names: list[str],
-               config: PipelineConfig, calibrate_window, known_camera: CameraModel | None
-               ) -> Calibration:
+def _calibrate(journey: Journey, calib_windows, names: list[str], config: PipelineConfig,
+               calibrate_window, on_candidate, known_camera: CameraModel | None) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed."""
     if not calib_windows:
         return Calibration(known_camera, "supplied")
     try:
-        return calibration.self_calibrate(turn_windows, names, config, calibrate_window,
+        return calibration.self_calibrate(calib_windows, names, config, calibrate_window,
                                           hint=journey.camera_prior, width=journey.image_width,
-                                          height=journey.image_height)
+                                          height=journey.image_height, on_candidate=on_candidate)
     except PipelineError:
         if known_camera is None:
             raise

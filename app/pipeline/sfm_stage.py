@@ -34,10 +34,13 @@ class StageSfm:
 
     def __init__(self, workdir: Path, journey: Journey, windows: list[tuple[int, int]], step: int,
                  front_end: str, config: PipelineConfig, xyz_gps: np.ndarray, verbose: bool, *,
-                 extra: np.ndarray = np.zeros(0, int)):
+                 extra: np.ndarray = np.zeros(0, int), frames: np.ndarray | None = None):
         self.workdir, self.journey, self.step = workdir, journey, step
         self.front_end, self.config, self.verbose = front_end, config, verbose
-        self.frame_idx = ego_motion.mapped_frames(windows, step, extra)
+        # ``frames``: the journey frames to map, given outright (self-calibration picks them by
+        # distance travelled) instead of by windows and a step.
+        self.frame_idx = (np.asarray(frames, int) if frames is not None
+                          else ego_motion.mapped_frames(windows, step, extra))
         self.priors = {journey.frames[i].path.name: tuple(xyz_gps[i]) for i in self.frame_idx}
         self._lock = threading.Lock()
         self._features: tuple[list[str], colmap_sfm.ImportedFeatures | None] | None = None
@@ -77,10 +80,13 @@ class StageSfm:
         job = colmap_sfm.SfmJob(
             self.journey.frames[0].path.parent, self.workdir, self.journey.image_width,
             self.journey.image_height, extract, requests,
-            colmap_sfm.FeatureOptions(cfg.sift_max_features, cfg.sift_max_image_size,
-                                      cfg.sift_first_octave, cfg.match_overlap,
-                                      cfg.colmap_threads, cfg.ba_max_refinements,
-                                      cfg.ba_function_tolerance, cfg.colmap_map_workers),
+            colmap_sfm.FeatureOptions(
+                max_features=cfg.sift_max_features, max_image_size=cfg.sift_max_image_size,
+                first_octave=cfg.sift_first_octave, overlap=cfg.match_overlap,
+                threads=cfg.colmap_threads, ba_max_refinements=cfg.ba_max_refinements,
+                ba_function_tolerance=cfg.ba_function_tolerance,
+                map_workers=cfg.colmap_map_workers,
+                aspect_prior_sigma=cfg.calib_aspect_prior_sigma),
             self.verbose, prior_enu=self.priors,
             prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported)
         return colmap_sfm.run_sfm(job, on_mapped=on_mapped)

@@ -182,6 +182,12 @@ def find_turns(xy_m: np.ndarray, *, tolerance_m: float = 2.0, min_angle_deg: flo
     return sorted(merged, key=lambda w: -abs(w.angle_deg))
 
 
+def track_length_m(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> np.ndarray:
+    """(N,) metres travelled at each frame of ``xy_m`` (N, 2), along the simplified track: monotone,
+    flat while the car stands, free of the length GPS jitter would add."""
+    return _simplify(xy_m, tolerance_m).s_m
+
+
 def total_rotation_deg(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> float:
     """Sum of |heading changes| (degrees) along the simplified track ``xy_m`` (N, 2): how much
     rotation the journey contains, whatever its direction."""
