@@ -150,3 +150,31 @@ def test_degenerate_inputs():
     assert find_turns(np.ones((20, 2))) == []
     assert total_rotation_deg(np.ones((20, 2))) == 0.0
     assert isinstance(find_turns(_polyline([0, 90], [50, 50]))[0], TurnWindow)
+
+
+def _phone_gps(xy_true: np.ndarray, sigma_m: float, seed: int) -> np.ndarray:
+    """A 1 Hz phone-grade receiver's fixes, linearly interpolated to 10 Hz frames."""
+    rng = np.random.default_rng(seed)
+    fixes = xy_true[::10] + sigma_m * rng.standard_normal((len(xy_true[::10]), 2))
+    t = np.arange(len(xy_true)) / 10.0
+    t_fix = t[::10]
+    return np.column_stack([np.interp(t, t_fix, fixes[:, k]) for k in range(2)])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_smoothing_keeps_phone_gps_noise_from_making_or_hiding_turns(seed):
+    from app.pipeline.turns import smooth_track
+
+    t_s = np.arange(300) / 10.0
+    straight = np.column_stack([8.0 * t_s, np.zeros_like(t_s)])
+    noisy = _phone_gps(straight, 2.5, seed)
+    assert find_turns(smooth_track(noisy, t_s, 1.0)) == []
+    # A 90 degree corner of radius 12 m halfway along.
+    step = 0.8  # 8 m/s at 10 Hz
+    theta = np.arange(step / 12.0, np.pi / 2 + 1e-9, step / 12.0)
+    arc = np.column_stack([12.0 * np.sin(theta), 12.0 - 12.0 * np.cos(theta)])
+    corner = np.vstack([_leg((-100.0, 0.0), 0.0, 100.0, step), arc,
+                        _leg(arc[-1], 90.0, 100.0, step)])
+    t_c = np.arange(len(corner)) / 10.0
+    found = find_turns(smooth_track(_phone_gps(corner, 2.5, seed), t_c, 1.0))
+    assert len(found) == 1 and 60.0 < abs(found[0].angle_deg) < 120.0

@@ -81,10 +81,13 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                               journey.alt_m if journey.has_altitude else None)
 
     with clock.stage("turns"):
-        turn_windows = turns.find_turns(xyz_gps[:, :2], tolerance_m=config.rdp_tolerance_m,
+        xy_track = turns.smooth_track(xyz_gps[:, :2], np.array([f.timestamp_s for f in
+                                                                journey.frames]),
+                                      config.turn_smoothing_s)
+        turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
                                         min_angle_deg=config.turn_min_angle_deg,
                                         window_m=config.turn_window_m)
-        s_m = turns.track_length_m(xyz_gps[:, :2], tolerance_m=config.rdp_tolerance_m)
+        s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
         calib_windows = calibration.candidate_windows(turn_windows, s_m, config)
         if known_camera is not None and config.reuse_known_calibration:
             calib_windows = []

@@ -82,7 +82,9 @@ class StageSfm:
             self.journey.image_height, extract, requests,
             colmap_sfm.FeatureOptions(
                 max_features=cfg.sift_max_features, max_image_size=cfg.sift_max_image_size,
-                first_octave=cfg.sift_first_octave, overlap=cfg.match_overlap,
+                first_octave=(-1 if self.journey.image_width < cfg.sift_upsample_below_px
+                              else cfg.sift_first_octave),
+                overlap=cfg.match_overlap,
                 threads=cfg.colmap_threads, ba_max_refinements=cfg.ba_max_refinements,
                 ba_function_tolerance=cfg.ba_function_tolerance,
                 map_workers=cfg.colmap_map_workers,
