@@ -99,7 +99,7 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "errors": camera_errors(cal.camera.params(), true_camera),
             "stage1": stage1,
             "stage1_errors": camera_errors(stage1, true_camera) if stage1 else None,
-            "reprojection_error_px": float(cal.reprojection_error_px),
+            "reprojection_error_px": float(cal.reprojection_error_px), "evidence": cal.evidence,
             "n_images": cal.n_images, "n_registered": cal.n_registered,
             "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
 

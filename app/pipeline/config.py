@@ -27,7 +27,9 @@ class PipelineConfig(BaseModel):
     calib_min_images: int = Field(
         12, description="fewest images a candidate maps: where frames are further apart than "
         "calib_window_m / calib_min_images, the window grows")
-    calib_max_candidates: int = Field(5, description="candidate windows tried per journey")
+    calib_max_candidates: int = Field(
+        7, description="candidate windows tried per journey (most stop at the first; a lone "
+        "window above calib_accept_reprojection_px must be confirmed by another)")
     # KLT tracks calibrated turn-70 3.5x faster than SIFT but less accurately (0.33 px instead of
     # 0.14 px; fy 0.8 %, cy 1.1 %, k2 2.3 % off instead of 0.4, 0.8, 0.2 %; 2026-11-23): the
     # small drift of a tracked corner along its track matters for the lens, not for ego-motion.

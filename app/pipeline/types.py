@@ -133,6 +133,9 @@ class Calibration:
     reprojection_error_px: float = float("nan")
     rotation_deg: float = 0.0
     windows: list[tuple[int, int]] = field(default_factory=list)
+    # Why a self-calibration was trusted: "reprojection" (one window under the sharp-image
+    # error) or "agreement" (two windows landed on the same camera).
+    evidence: str = ""
 
 
 @dataclass(frozen=True)
