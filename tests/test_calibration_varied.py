@@ -1,9 +1,13 @@
 """Self-calibration with real COLMAP on rendered journeys unlike the ones its knobs were first chosen
-on: other frame rates and speeds, a stop at the turn, other lenses and resolutions, blurred JPEG
-frames and a 1 Hz GPS that starts after the first frame (issue 11's reported failures). A
-calibration that is accepted must be within the corpus bench's bars (fx and fy within 1 %, cx and cy
-within 4 px, k1 within 5 %); one that cannot be trusted must be refused with every window's reason.
-How often each kind of journey succeeds is the corpus bench's figure, not a test's."""
+on: 20 Hz with a stop at the turn on a small sensor, a wide crop with a strong lens through a U-turn
+(issue 11's reported failures). Each must calibrate to the corpus bench's bars: fx and fy
+within 1 %, cx and cy within 4 px, k1 within 5 %.
+
+A 5 Hz, 12 m/s journey through a 60 degree bend (blurred JPEG frames, 1 Hz GPS starting late) was a
+third case until CI, 2026-11-25, accepted fx 23 % low on it: most of its windows fall into wrong
+minima (fx 23-45 % low, k1 +0.3 to +0.65, at 0.75 px) and whether its one right window registers
+varies with COLMAP's thread timing. A lone window like those is now refused
+(``test_calibration_judge``); how often such journeys calibrate is the corpus bench's figure."""
 
 from __future__ import annotations
 
@@ -15,7 +19,7 @@ import pytest
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.run import process_journey
-from app.pipeline.types import CameraModel, PipelineError
+from app.pipeline.types import CameraModel
 from tests.conftest import _synthetic
 
 pytestmark = pytest.mark.slow
@@ -29,15 +33,6 @@ def _camera(width: int, height: int, hfov_deg: float, k1: float, k2: float,
 
 
 VARIED = {
-    # 5 Hz at 12 m/s through a 60 degree bend: 2.4 m between frames. Most of its windows fall
-    # into wrong minima (fx 23-45 % low, k1 +0.3 to +0.65 at 0.75 px) and whether its one right
-    # window registers varies with COLMAP's thread timing: CI once accepted fx 23 % low here
-    # (2026-11-25), before a lone window needed another to confirm it. So it may be refused.
-    "5hz-12mps-60deg-blur-1hz-gps": dict(
-        n_frames=60, fps=5.0, speed_mps=12.0, turn_specs=((60.0, 30.0),),
-        camera=_camera(960, 540, 90.0, -0.30, 0.08, (12.0, -6.0)), image_format="jpg",
-        jpeg_quality=70, exposure_s=0.004, gps_rate_hz=1.0, gps_phase_s=0.62,
-        gps_white_sigma_m=1.0, world_seed=31, seed=31),
     # 20 Hz at 6 m/s, standing 2 s at the corner: 0.3 m between frames, none while standing.
     "20hz-6mps-stop-small": dict(
         n_frames=320, fps=20.0, speed_mps=6.0, turn_specs=((-90.0, 12.0),), stops=((5.5, 2.0),),
@@ -50,21 +45,13 @@ VARIED = {
 }
 
 
-MAY_REFUSE = {"5hz-12mps-60deg-blur-1hz-gps"}
-
-
 @pytest.mark.parametrize("name", sorted(VARIED))
 def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, tmp_path):
     bundle, truth = _synthetic(tmp_path_factory, name, **VARIED[name])
     journey = read_bundle(bundle, tmp_path / "bundle")
     # Without detections the pipeline stops after calibrating.
     journey = dataclasses.replace(journey, detections=[])
-    try:
-        result = process_journey(journey, PipelineConfig(), tmp_path / "work")
-    except PipelineError as exc:
-        assert name in MAY_REFUSE, str(exc)
-        assert exc.stage == "calibrate" and "failed on every turn window" in str(exc)
-        return
+    result = process_journey(journey, PipelineConfig(), tmp_path / "work")
     true, cam = truth["camera"], result.calibration.camera
     assert result.calibration.source == "self"
     assert result.calibration.evidence in {"reprojection", "agreement"}
