@@ -2,9 +2,24 @@
 # A walk through the default stack (SQLite + the API's embedded worker), as a fleet integrator would
 # use it: render a synthetic journey, start `signmap serve`, make keys, upload with curl, poll the
 # journey until it is done and print its signs and the map. Needs the project installed in .venv
-# (bash scripts/test.sh does that), curl and jq. DEMO_DIR keeps the files; PORT picks the port.
+# (bash scripts/run.sh or scripts/test.sh does that), curl and jq (checked first). DEMO_DIR keeps
+# the files; PORT picks the port.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+missing=""
+for tool in curl jq; do
+  command -v "$tool" >/dev/null 2>&1 || missing="$missing $tool"
+done
+if [ -n "$missing" ]; then
+  echo "scripts/demo.sh needs curl and jq; missing:$missing" >&2
+  echo "install them (e.g. 'apt-get install curl jq' or 'brew install curl jq')" \
+    "and run it again" >&2
+  exit 1
+fi
+if [ ! -x .venv/bin/signmap ]; then
+  echo "scripts/demo.sh needs signmap installed in .venv: run 'bash scripts/run.sh' first" >&2
+  exit 1
+fi
 export PATH="$PWD/.venv/bin:$PATH"
 work=${DEMO_DIR:-$(mktemp -d /tmp/signmap-demo.XXXXXX)}
 port=${PORT:-8765}

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # The whole test suite: creates .venv when missing, installs the project with its test extras and
 # runs pytest (arguments are passed on, e.g. `bash scripts/test.sh -m "not slow"`).
-# Real-stack tests need PostgreSQL on 127.0.0.1:5432 and Redis on 127.0.0.1:6379 (.ci/run starts
-# them); without them they are skipped, or fail when CI is set.
+# PYTHON picks the interpreter for a new .venv (default: the newest python3.13/3.12/3.11/python3).
+# Real-service tests need PostgreSQL on 127.0.0.1:5432 and Redis on 127.0.0.1:6379 (.ci/run starts
+# them) and, for the dashboard, /usr/bin/chromium; without them they are skipped and the run ends
+# with a "real-service tests skipped" section saying which and why; under CI=true they fail the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python=${PYTHON:-python3.11}
-if [ ! -x .venv/bin/python ]; then
-  "$python" -m venv .venv
-fi
+source scripts/venv.sh  # any Python >= 3.11 ($PYTHON, else python3.13 ... python3)
+ensure_venv
 .venv/bin/python -m pip install --quiet -e '.[test]'
 exec .venv/bin/python -m pytest -ra "$@"
