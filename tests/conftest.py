@@ -1,15 +1,17 @@
 """Service test fixtures: the embedded stack (SQLite, jobs in the API process) and the real stack
 (a throw-away PostgreSQL database migrated by Alembic, Redis, real Celery worker processes).
 
-Without PostgreSQL/Redis the real-stack tests are skipped, except under CI (``CI`` set), where they
-fail. Locations: SIGNMAP_TEST_POSTGRES_URL (a database to connect to for CREATE DATABASE) and
-SIGNMAP_TEST_REDIS_URL.
+Without PostgreSQL/Redis the real-stack tests are skipped, except under CI (``CI=true``), where they
+fail; the run ends with a "real-service tests skipped" section saying which were skipped and why
+(``tests/real_services.py``, which also covers the browser tests). Locations:
+SIGNMAP_TEST_POSTGRES_URL (a database to connect to for CREATE DATABASE) and SIGNMAP_TEST_REDIS_URL.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import signal
 import subprocess
@@ -18,7 +20,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, NoReturn
 
 import pytest
 from sqlalchemy import create_engine, func, select, text
@@ -27,6 +29,7 @@ from app.service.auth import create_key, key_sha256
 from app.service.db import get_engine, session_scope, upgrade
 from app.service.models import ApiKey, Journey
 from app.settings import Settings
+from tests.real_services import register_real_service_skips, service_unavailable
 
 ADMIN_KEY = "test-admin-" + secrets.token_hex(8)
 SESSION_TAG = secrets.token_hex(4)
@@ -36,11 +39,13 @@ REDIS_URL = os.environ.get("SIGNMAP_TEST_REDIS_URL", "redis://127.0.0.1:6379/13"
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _unavailable(what: str, exc: Exception) -> None:
-    message = f"{what} is not reachable ({exc})"
-    if os.environ.get("CI"):
-        pytest.fail(message)
-    pytest.skip(message)
+def _unavailable(what: str, where: str, exc: Exception) -> NoReturn:
+    detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    service_unavailable(f"{what} is not reachable at {where}: {detail}")
+
+
+def pytest_configure(config) -> None:
+    register_real_service_skips(config)
 
 
 @contextmanager
@@ -51,7 +56,7 @@ def _pg_database(name: str) -> Iterator[str]:
         with admin.connect() as conn:
             conn.execute(text(f'CREATE DATABASE "{name}"'))
     except Exception as exc:  # noqa: BLE001 - any failure means "no PostgreSQL here"
-        _unavailable("PostgreSQL", exc)
+        _unavailable("PostgreSQL", admin.url.render_as_string(hide_password=True), exc)
     url = admin.url.set(database=name).render_as_string(hide_password=False)
     try:
         upgrade(url)
@@ -87,7 +92,7 @@ def redis_url() -> Iterator[str]:
     try:
         client.ping()
     except Exception as exc:  # noqa: BLE001
-        _unavailable("Redis", exc)
+        _unavailable("Redis", re.sub(r"//[^/@]*@", "//***@", REDIS_URL), exc)  # no password
     yield REDIS_URL
     _forget_queues(client, f"signmap_test_{SESSION_TAG}")
 

@@ -7,12 +7,12 @@ test-output/.
 
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
 
 import httpx
 import pytest
@@ -22,16 +22,15 @@ from app.service.db import session_scope
 from app.service.models import Journey
 from tests.browser.seed import add_journey, set_progress
 from tests.conftest import ADMIN_KEY, REPO, auth, make_settings, settings_env
+from tests.real_services import service_unavailable
 
 CHROMIUM = Path("/usr/bin/chromium")
 SHOTS = REPO / "test-output"
 pytestmark = pytest.mark.browser
 
 
-def _missing(what: str) -> None:
-    if os.environ.get("CI"):
-        pytest.fail(f"{what} is missing (.ci/run installs it)")
-    pytest.skip(f"{what} is missing")
+def _missing(what: str) -> NoReturn:
+    service_unavailable(f"{what} is missing")
 
 
 @pytest.fixture(scope="module")
