@@ -63,25 +63,58 @@ def keys_create(args: argparse.Namespace) -> int:
     return 0
 
 
+def _show_help(parser: argparse.ArgumentParser):
+    """A command function printing ``parser``'s help: ``signmap keys`` alone lists its subcommands
+    instead of an argparse error (exit code 2, a usage error, as argparse's)."""
+    def show(args: argparse.Namespace) -> int:
+        parser.print_help()
+        return 2
+    return show
+
+
 def add_parsers(sub) -> None:
-    p = sub.add_parser("serve", help="run the HTTP API (and, without a broker, the jobs)")
-    p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8000)
+    p = sub.add_parser("serve", help="run the HTTP API (and, without a broker, the jobs too)",
+                       description="Runs the HTTP API. With nothing configured it keeps its data "
+                       "in SQLite under SIGNMAP_DATA_DIR (default ./signmap-data) and runs the "
+                       "jobs itself; with SIGNMAP_BROKER_URL set, `signmap worker` runs them. "
+                       "Settings: SIGNMAP_* environment variables (docs/service.md).")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default: %(default)s, this machine only; "
+                   "0.0.0.0 for every interface)")
+    p.add_argument("--port", type=int, default=8000,
+                   help="TCP port to listen on (default: %(default)s)")
     p.set_defaults(func=serve)
 
-    p = sub.add_parser("worker", help="run a Celery worker (needs SIGNMAP_BROKER_URL)")
-    p.add_argument("--hostname", default=None, help="Celery node name, e.g. w1@%%h")
+    p = sub.add_parser("worker", help="run a job worker (needs SIGNMAP_BROKER_URL)",
+                       description="Runs a Celery worker that processes uploaded journeys from "
+                       "the queue at SIGNMAP_BROKER_URL (e.g. redis://127.0.0.1:6379/0); start "
+                       "as many as there are cores to spare.")
+    p.add_argument("--hostname", default=None,
+                   help="this worker's node name, e.g. w1@%%h (default: Celery's, celery@HOST)")
     p.set_defaults(func=worker)
 
-    p = sub.add_parser("db", help="database maintenance")
-    db_sub = p.add_subparsers(dest="db_command", required=True)
-    q = db_sub.add_parser("upgrade", help="apply the Alembic migrations")
-    q.add_argument("revision", nargs="?", default="head")
+    p = sub.add_parser("db", help="database maintenance: `signmap db upgrade`",
+                       description="Database maintenance (the database at SIGNMAP_DATABASE_URL, "
+                       "default SQLite under SIGNMAP_DATA_DIR).")
+    p.set_defaults(func=_show_help(p))
+    db_sub = p.add_subparsers(dest="db_command", metavar="COMMAND")
+    q = db_sub.add_parser("upgrade", help="create the database tables or bring them up to date",
+                          description="Creates the database tables or migrates them to REVISION "
+                          "(Alembic). Run it after installing a new version; `signmap serve` "
+                          "does it itself on SQLite.")
+    q.add_argument("revision", nargs="?", default="head",
+                   help="schema revision to migrate to (default: %(default)s, the newest)")
     q.set_defaults(func=db_upgrade)
 
-    p = sub.add_parser("keys", help="API keys")
-    keys_sub = p.add_subparsers(dest="keys_command", required=True)
-    q = keys_sub.add_parser("create", help="create a key and print it (shown only this once)")
-    q.add_argument("--role", required=True, choices=ROLES)
-    q.add_argument("--name", default="", help="who the key is for")
+    p = sub.add_parser("keys", help="API keys: `signmap keys create`",
+                       description="API keys for the HTTP API and the dashboard.")
+    p.set_defaults(func=_show_help(p))
+    keys_sub = p.add_subparsers(dest="keys_command", metavar="COMMAND")
+    q = keys_sub.add_parser("create", help="create a key and print it (shown only this once)",
+                            description="Creates an API key and prints it; only its hash is "
+                            "stored, so it is shown this once. Roles: fleet uploads journeys and "
+                            "reads its own; reader reads the map; admin may do everything, "
+                            "including signing in to the dashboard.")
+    q.add_argument("--role", required=True, choices=ROLES, help="what the key may do")
+    q.add_argument("--name", default="", help="who the key is for, e.g. van-3")
     q.set_defaults(func=keys_create)

@@ -1,0 +1,125 @@
+"""``signmap process BUNDLE.zip``: the whole pipeline locally, no server or database needed, with
+distinct exit codes for bad input and for a journey the pipeline could not process.
+
+The summary it prints and the report it writes are ``app.pipeline.process_cli``'s."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import tempfile
+from pathlib import Path
+
+# Exit codes of `signmap` (documented in its --help epilog; 1: any other failure).
+EXIT_OK = 0
+EXIT_USAGE = 2  # argparse's: an unknown option, a missing argument, a command without a subcommand
+EXIT_BAD_INPUT = 3  # a file given does not exist, cannot be read or breaks the wire contract
+EXIT_PIPELINE_FAILED = 4  # the input was valid but the pipeline could not process the journey
+
+EXIT_CODES_HELP = f"""\
+exit status:
+  {EXIT_OK}  success
+  1  any other failure, e.g. a service command that cannot start (the message
+     says why)
+  {EXIT_USAGE}  usage error: an unknown option, a missing argument or subcommand
+  {EXIT_BAD_INPUT}  bad input (process): a file given does not exist or cannot be read, or
+     the bundle breaks the journey format (docs/journey-format.md); the
+     message says what to fix
+  {EXIT_PIPELINE_FAILED}  the journey could not be processed (process): e.g. its camera could
+     not be calibrated; the message says at which stage and why"""
+
+
+class BadInput(Exception):
+    """A file given on the command line is missing, unreadable or not what it should be."""
+
+
+def _input_file(path: str, what: str) -> Path:
+    """``path`` as a Path when it names a readable file; else BadInput saying what is wrong."""
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(f"{what} {path} does not exist")
+    if p.is_dir():
+        raise BadInput(f"{what} {path} is a directory, not a file")
+    try:
+        with p.open("rb"):
+            pass
+    except OSError as exc:
+        raise BadInput(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    return p
+
+
+def _calibration(path: str) -> dict[str, float]:
+    """The camera parameters of a ``--calibration`` file: a JSON object with numeric fx, fy, cx, cy
+    and optionally k1, k2."""
+    p = _input_file(path, "calibration file")
+    try:
+        params = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadInput(f"calibration file {path} is not valid JSON: {exc}") from None
+    required = ("fx", "fy", "cx", "cy")
+    if not isinstance(params, dict) or any(k not in params for k in required):
+        raise BadInput(f"calibration file {path} must be a JSON object with fx, fy, cx, cy "
+                       "(and optionally k1, k2), e.g. {\"fx\": 1000, \"fy\": 1000, \"cx\": 960, "
+                       "\"cy\": 540, \"k1\": -0.1, \"k2\": 0.01}")
+    for key in (*required, "k1", "k2"):
+        value = params.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise BadInput(f"calibration file {path}: {key} must be a number, got {value!r}")
+    return params
+
+
+def run_process(args) -> int:
+    """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
+    from app.geojson import feature_collection, journey_sign_features
+    from app.pipeline.bundle import read_bundle
+    from app.pipeline.process_cli import _progress_printer, report
+    from app.pipeline.run import process_journey
+    from app.pipeline.types import BundleError, CameraModel, PipelineError
+    from app.settings import Settings
+
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        bundle = _input_file(args.bundle, "bundle")
+        params = _calibration(args.calibration) if args.calibration else None
+    except BadInput as exc:
+        print(f"signmap process: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    settings = Settings()
+    out = Path(args.out)
+    with tempfile.TemporaryDirectory(prefix="signmap-") as tmp:
+        workdir = Path(args.workdir) if args.workdir else Path(tmp)
+        try:
+            journey = read_bundle(bundle, workdir / "bundle")
+        except BundleError as exc:
+            print(f"signmap process: {bundle} is not a valid journey bundle: {exc.reason}",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        known = None
+        if params is not None:
+            known = CameraModel.from_params(journey.image_width, journey.image_height, params)
+        try:
+            result = process_journey(journey, settings.pipeline, workdir / "work",
+                                     known_camera=known, progress=_progress_printer(),
+                                     verbose=args.verbose)
+        except PipelineError as exc:
+            print(f"signmap process: the journey could not be processed at stage {exc.stage}: "
+                  f"{exc.reason}", file=sys.stderr)
+            return EXIT_PIPELINE_FAILED
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(feature_collection(journey_sign_features(result.signs)), indent=1))
+    report_path = Path(args.report) if args.report else out.with_suffix(".report.json")
+    report_path.write_text(json.dumps(report(result, journey.warnings), indent=1))
+    cal = result.calibration.camera
+    print(f"calibration ({result.calibration.source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
+          f"cx={cal.cx:.1f} cy={cal.cy:.1f} k1={cal.k1:.3f} k2={cal.k2:.3f}")
+    for s in result.signs:
+        alt = "" if s.alt_m is None else f" alt {s.alt_m:.2f} m"
+        print(f"sign {s.track_id:>6} {s.cls:<16} lat {s.lat_deg:.7f} lon {s.lon_deg:.7f}{alt} "
+              f"± {s.std_m:.2f} m ({len(s.observations)} frames)")
+    for r in result.rejected:
+        print(f"rejected {r.track_id}: {r.reason}")
+    print(f"wrote {out} and {report_path}; stages: "
+          + ", ".join(f"{k} {v:.1f}s" for k, v in result.timings_s.items()))
+    return EXIT_OK
