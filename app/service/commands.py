@@ -63,16 +63,9 @@ def keys_create(args: argparse.Namespace) -> int:
     return 0
 
 
-def _show_help(parser: argparse.ArgumentParser):
-    """A command function printing ``parser``'s help: ``signmap keys`` alone lists its subcommands
-    instead of an argparse error (exit code 2, a usage error, as argparse's)."""
-    def show(args: argparse.Namespace) -> int:
-        parser.print_help()
-        return 2
-    return show
-
-
 def add_parsers(sub) -> None:
+    from app.cli import show_help  # app.cli imports this module only inside build_parser
+
     p = sub.add_parser("serve", help="run the HTTP API (and, without a broker, the jobs too)",
                        description="Runs the HTTP API. With nothing configured it keeps its data "
                        "in SQLite under SIGNMAP_DATA_DIR (default ./signmap-data) and runs the "
@@ -96,7 +89,7 @@ def add_parsers(sub) -> None:
     p = sub.add_parser("db", help="database maintenance: `signmap db upgrade`",
                        description="Database maintenance (the database at SIGNMAP_DATABASE_URL, "
                        "default SQLite under SIGNMAP_DATA_DIR).")
-    p.set_defaults(func=_show_help(p))
+    p.set_defaults(func=show_help(p))
     db_sub = p.add_subparsers(dest="db_command", metavar="COMMAND")
     q = db_sub.add_parser("upgrade", help="create the database tables or bring them up to date",
                           description="Creates the database tables or migrates them to REVISION "
@@ -108,7 +101,7 @@ def add_parsers(sub) -> None:
 
     p = sub.add_parser("keys", help="API keys: `signmap keys create`",
                        description="API keys for the HTTP API and the dashboard.")
-    p.set_defaults(func=_show_help(p))
+    p.set_defaults(func=show_help(p))
     keys_sub = p.add_subparsers(dest="keys_command", metavar="COMMAND")
     q = keys_sub.add_parser("create", help="create a key and print it (shown only this once)",
                             description="Creates an API key and prints it; only its hash is "
