@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from functools import cached_property
 from pathlib import Path
+from urllib.parse import urlsplit
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
@@ -18,6 +19,11 @@ class Settings(BaseSettings):
     data_dir: Path = Path("./signmap-data")
     database_url: str | None = Field(None, description="default: SQLite file under data_dir")
     broker_url: str | None = Field(None, description="default: none, an in-process worker runs jobs")
+    storage_url: str | None = Field(
+        None, description="where accepted bundles are kept: unset = data_dir/bundles (the API and "
+                          "workers then share data_dir); s3://bucket/prefix = an S3-compatible "
+                          "store, endpoint and credentials from AWS_ENDPOINT_URL, "
+                          "AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY")
     admin_key: str | None = None
     max_upload_mb: int = 2048
     log_level: str = "INFO"
@@ -46,6 +52,13 @@ class Settings(BaseSettings):
     calibration_flag_rel: float = Field(
         0.03, description="flag a self-calibration whose fx/fy (relative) or cx/cy (relative to "
                           "the image size) differ more than this from the camera's stored one")
+
+    @field_validator("storage_url")
+    @classmethod
+    def _s3_url(cls, value: str | None) -> str | None:
+        if value and (urlsplit(value).scheme != "s3" or not urlsplit(value).netloc):
+            raise ValueError(f"storage_url must look like s3://bucket/prefix, not {value!r}")
+        return value or None
 
     @cached_property
     def effective_database_url(self) -> str:

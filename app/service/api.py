@@ -11,7 +11,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
-from sqlalchemy import delete, func, select
+from sqlalchemy import delete, select
 from sqlalchemy.exc import IntegrityError
 
 from app.geojson import feature_collection
@@ -64,7 +64,8 @@ def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
                413: {"model": ErrorOut, "description": "over SIGNMAP_MAX_UPLOAD_MB"},
                415: {"model": ErrorOut, "description": "not multipart/form-data"},
                422: {"model": ErrorOut, "description": "the bundle breaks the wire contract"},
-               503: {"model": ErrorOut, "description": "the job queue is unreachable"},
+               503: {"model": ErrorOut,
+                     "description": "the job queue or the bundle store is unreachable"},
                **_AUTH_ERRORS},
     # The body is parsed as a stream (not by FastAPI), so its schema is declared here for /docs.
     openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
@@ -91,7 +92,13 @@ async def upload_journey(request: Request,
         finally:
             shutil.rmtree(extract_dir, ignore_errors=True)
         validate_s = time.perf_counter() - t0
-        path, new_file = storage.keep_bundle(settings.data_dir, incoming, received.sha256)
+        try:
+            new_file = await run_in_threadpool(request.app.state.store.put, received.sha256,
+                                               incoming)
+        except storage.StorageUnavailable as exc:
+            log.error("upload by key %s not stored: %s", who.key_id, exc)
+            raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                                "the bundle store is unreachable; try again later") from exc
     finally:
         incoming.unlink(missing_ok=True)
 
@@ -111,7 +118,7 @@ async def upload_journey(request: Request,
         request.app.state.queue.submit(row.id)
     except Exception as exc:
         log.exception("journey %s: could not be queued; upload undone", row.id)
-        _undo(request, row, path if new_file else None)
+        _undo(request, row, new_file)
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
                             "the job queue is unreachable; try again later") from exc
     log.info("journey %s queued: %d frames, camera %s, %d bytes, key %s, validated in %.1f s",
@@ -137,13 +144,11 @@ def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | N
     return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
 
 
-def _undo(request: Request, row: Journey, new_file) -> None:
+def _undo(request: Request, row: Journey, new_file: bool) -> None:
     with session_scope(_url(request)) as session:
         session.execute(delete(Journey).where(Journey.id == row.id))
-        others = session.scalar(select(func.count()).select_from(Journey)
-                                .where(Journey.bundle_sha256 == row.bundle_sha256))
-    if new_file is not None and not others:
-        new_file.unlink(missing_ok=True)
+    if new_file:
+        storage.release_bundle(_url(request), request.app.state.store, row.bundle_sha256)
 
 
 @router.get("/journeys", response_model=list[JourneyOut], summary="The caller's journeys",
