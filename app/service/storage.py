@@ -101,7 +101,6 @@ class S3BundleStore:
 
         parts = urlsplit(url)
         self.bucket, self.prefix = parts.netloc, parts.path.strip("/")
-        self.url = url
         # Fail an unreachable store within seconds (an upload then answers 503), not minutes.
         # Path-style addresses: a self-hosted store (MinIO at http://minio:9000) has no DNS name
         # per bucket, and AWS S3 answers path-style requests too.
