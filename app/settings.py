@@ -9,7 +9,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
-from app.pipeline.config import PipelineConfig
+from app.pipeline.config import BundleLimits, PipelineConfig
 
 
 class Settings(BaseSettings):
@@ -20,6 +20,9 @@ class Settings(BaseSettings):
     broker_url: str | None = Field(None, description="default: none, an in-process worker runs jobs")
     admin_key: str | None = None
     max_upload_mb: int = 2048
+    bundle: BundleLimits = Field(
+        BundleLimits(), description="what one bundle may unpack to and contain (rows, frames, "
+        "pixels), checked before the work is spent; SIGNMAP_BUNDLE__<NAME>")
     log_level: str = "INFO"
     # Admin dashboard (docs/service.md, "Dashboard").
     map_tile_url: str = Field(

@@ -41,12 +41,12 @@ import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Sequence
+from typing import BinaryIO, Sequence
 
 import numpy as np
 from pyproj import Geod
 
-from app.pipeline.csv_table import parse_float, read_table
+from app.pipeline.csv_table import iter_table, parse_float
 from app.pipeline.types import BundleError
 
 EXTRAPOLATION_MIN_S = 1.5  # extrapolation bound: max(MIN, FIX_INTERVALS x median interval), <= MAX
@@ -206,9 +206,12 @@ def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
     return frame_gps
 
 
-def gps_from_csv(text: str, frame_ids: Sequence[str]) -> FrameGps:
-    """``gps.csv`` text -> per-frame GPS (see the module docstring for the rules)."""
-    rows = read_table(text, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",))
+def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
+                 max_rows: int | None = None) -> FrameGps:
+    """``gps.csv`` (text, or a binary stream read as it goes) -> per-frame GPS (see the module
+    docstring for the rules); more than ``max_rows`` rows is a BundleError."""
+    rows = iter_table(source, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",),
+                      max_rows=max_rows)
     frame_t: dict[str, tuple[float, int]] = {}
     t_fix, lat_fix, lon_fix, alt_fix, labels = [], [], [], [], []
     for r in rows:

@@ -78,7 +78,8 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         if not bundle.is_file():
             # The API and every worker must share data_dir (docs/service.md).
             raise PipelineError(stage, f"the stored bundle {bundle} is missing on this worker")
-        journey = read_bundle(bundle, workdir / "bundle", decode_images=False)
+        journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle,
+                              decode_images=False)
         progress("extract", 0.0, f"{len(journey.frames)} frames")
         stage = "pipeline"
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",
