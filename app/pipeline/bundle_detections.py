@@ -12,6 +12,7 @@ limits (``BundleLimits``) stop a longer one as soon as it passes them.
 
 from __future__ import annotations
 
+import math
 from array import array
 from dataclasses import dataclass
 from typing import BinaryIO, Sequence
@@ -52,6 +53,22 @@ class DetectionTable:
                 for k in rows]
 
 
+def _box(coords: list[str], row: int) -> tuple[float, float, float, float]:
+    try:  # the fast path: four finite numbers (no message is formatted for a valid row)
+        x1, y1, x2, y2 = map(float, coords)
+        if math.isfinite(x1) and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2):
+            return x1, y1, x2, y2
+    except ValueError:
+        pass
+    x1, y1, x2, y2 = (parse_float(text, f"detection row {row}: {c}")
+                      for text, c in zip(coords, ("x1", "y1", "x2", "y2")))
+    return x1, y1, x2, y2
+
+
+def _shown(x1: float, y1: float, x2: float, y2: float) -> str:
+    return f"({x1:g},{y1:g})-({x2:g},{y2:g})"
+
+
 def _code(table: dict[str, int], value: str) -> int:
     code = table.get(value)
     if code is None:
@@ -69,39 +86,36 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
     lo_x = lo_y = -0.5 - BORDER_TOLERANCE_PX
     hi_x, hi_y = width - 0.5 + BORDER_TOLERANCE_PX, height - 0.5 + BORDER_TOLERANCE_PX
     per_frame = [0] * len(frame_ids)
+    max_boxes = max_boxes_per_frame if max_boxes_per_frame is not None else math.inf
     tracks: dict[str, int] = {}
     classes: dict[str, int] = {}
     frame_col, track_col, cls_col, line_col = array("i"), array("i"), array("i"), array("q")
     box_col, score_col = array("d"), array("d")
-    for r in rows:
-        where = f"detection row {r.row}"
-        frame = r["frame"]
-        if not frame:
-            raise BundleError(f"{where} has no frame")
+    for row, (frame, cls, *coords, track_id, score) in rows:
         f = known.get(frame)
         if f is None:
-            raise BundleError(f"{where} names frame {frame} which is not in frames/")
+            where = f"detection row {row}"
+            raise BundleError(f"{where} has no frame" if not frame else
+                              f"{where} names frame {frame} which is not in frames/")
         per_frame[f] += 1
-        if max_boxes_per_frame is not None and per_frame[f] > max_boxes_per_frame:
-            raise BundleError(f"{where}: frame {frame} has more than {max_boxes_per_frame} "
+        if per_frame[f] > max_boxes:
+            raise BundleError(f"detection row {row}: frame {frame} has more than {max_boxes} "
                               "detection boxes, the limit per frame")
-        cls = r["class"]
         if not cls:
-            raise BundleError(f"{where} has an empty class")
-        x1, y1, x2, y2 = (parse_float(r[c], f"{where}: {c}") for c in ("x1", "y1", "x2", "y2"))
-        box = f"({x1:g},{y1:g})-({x2:g},{y2:g})"
+            raise BundleError(f"detection row {row} has an empty class")
+        x1, y1, x2, y2 = _box(coords, row)
         if not (x1 < x2 and y1 < y2):
-            raise BundleError(f"{where}: box {box} is empty or inverted; need x1 < x2 and y1 < y2")
+            raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} is empty or "
+                              "inverted; need x1 < x2 and y1 < y2")
         if x1 < lo_x or y1 < lo_y or x2 > hi_x or y2 > hi_y:
-            raise BundleError(f"{where}: box {box} lies outside the {width}x{height} image")
-        score = parse_float(r["score"], f"{where}: score") if r["score"] else np.nan
-        track_id = r["track_id"]
+            raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} lies outside "
+                              f"the {width}x{height} image")
         frame_col.append(f)
         track_col.append(_code(tracks, track_id) if track_id else -1)
         cls_col.append(_code(classes, cls))
-        line_col.append(r.row)
+        line_col.append(row)
         box_col.extend((x1, y1, x2, y2))
-        score_col.append(score)
+        score_col.append(parse_float(score, f"detection row {row}: score") if score else np.nan)
     table = DetectionTable(np.frombuffer(frame_col, np.int32), np.frombuffer(track_col, np.int32),
                            np.frombuffer(cls_col, np.int32),
                            np.frombuffer(box_col, np.float64).reshape(-1, 4),

@@ -11,19 +11,10 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
+import operator
 from typing import BinaryIO, Iterator, Sequence, TextIO
 
 from app.pipeline.types import BundleError
-
-
-@dataclass(frozen=True)
-class TableRow:
-    row: int
-    values: dict[str, str]
-
-    def __getitem__(self, column: str) -> str:
-        return self.values.get(column, "")
 
 
 def decode_text(data: bytes, file_name: str) -> str:
@@ -43,9 +34,11 @@ def text_lines(source: str | BinaryIO) -> TextIO:
 
 
 def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
-               optional: Sequence[str] = (), *, max_rows: int | None = None) -> Iterator[TableRow]:
-    """Rows of a CSV with a mandatory header, one at a time; an absent optional column reads as
-    empty values. More than ``max_rows`` data rows is a BundleError raised as the row after the
+               optional: Sequence[str] = (), *, max_rows: int | None = None
+               ) -> Iterator[tuple[int, tuple[str, ...]]]:
+    """(line number, values) of each row of a CSV with a mandatory header, one at a time: values
+    in the order of ``required`` then ``optional``, stripped, "" where the row is short or an
+    optional column is absent. More than ``max_rows`` data rows is a BundleError raised as the row after the
     limit is read, before anything beyond it is parsed."""
     expected = ",".join([*required, *optional])
     reader = csv.reader(text_lines(source))
@@ -63,16 +56,26 @@ def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
         if missing:
             raise BundleError(f"{file_name} header lacks column(s) {', '.join(missing)}; expected "
                               f"{expected} (got {','.join(columns)[:200]})")
-        wanted = [(i, c) for i, c in enumerate(columns) if c in (*required, *optional)]
+        wanted = [*required, *optional]
+        # The last column of that name, as a dict of the header would keep; -1: absent.
+        position = [max((i for i, c in enumerate(columns) if c == w), default=-1) for w in wanted]
+        present = [i for i in position if i >= 0]
+        getter = operator.itemgetter(*position) if len(present) == len(position) > 1 else None
+        needed = max(present) + 1
+        limit = max_rows if max_rows is not None else -1
         for fields in reader:
-            if not any(f.strip() for f in fields):
+            if getter is not None and len(fields) >= needed:
+                values = tuple(map(str.strip, getter(fields)))
+            else:
+                values = tuple(fields[i].strip() if 0 <= i < len(fields) else ""
+                               for i in position)
+            if not any(values) and not any(f.strip() for f in fields):
                 continue
             n_rows += 1
-            if max_rows is not None and n_rows > max_rows:
+            if n_rows == limit + 1:
                 raise BundleError(f"{file_name} has more than {max_rows} rows, the limit per "
                                   "journey; split the journey into shorter ones")
-            yield TableRow(reader.line_num,
-                           {c: fields[i].strip() for i, c in wanted if i < len(fields)})
+            yield reader.line_num, values
     except csv.Error as exc:
         raise BundleError(f"{file_name} is not valid CSV near row {reader.line_num}: {exc}") from None
     except UnicodeDecodeError:

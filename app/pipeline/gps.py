@@ -214,25 +214,24 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
                       max_rows=max_rows)
     frame_t: dict[str, tuple[float, int]] = {}
     t_fix, lat_fix, lon_fix, alt_fix, labels = [], [], [], [], []
-    for r in rows:
-        where = f"gps.csv row {r.row}"
-        t = parse_float(r["timestamp_s"], f"{where}: timestamp_s")
-        frame = r["frame"]
+    for row, (frame, t_text, lat_text, lon_text, alt_text) in rows:
+        where = f"gps.csv row {row}"
+        t = parse_float(t_text, f"{where}: timestamp_s")
         if frame:
             if frame in frame_t and frame_t[frame][0] != t:
                 raise BundleError(f"{where} gives frame {frame} timestamp {t:g}, but row "
                                   f"{frame_t[frame][1]} gave it {frame_t[frame][0]:g}")
-            frame_t[frame] = (t, r.row)
-        if not r["lat"] and not r["lon"]:
+            frame_t[frame] = (t, row)
+        if not lat_text and not lon_text:
             if not frame:
                 raise BundleError(f"{where} has neither a frame nor a position (lat, lon)")
             continue
-        lat = parse_float(r["lat"], f"{where}: lat")
-        lon = parse_float(r["lon"], f"{where}: lon")
+        lat = parse_float(lat_text, f"{where}: lat")
+        lon = parse_float(lon_text, f"{where}: lon")
         check_position(lat, lon, where)
-        alt = parse_float(r["alt_m"], f"{where}: alt_m") if r["alt_m"] else math.nan
+        alt = parse_float(alt_text, f"{where}: alt_m") if alt_text else math.nan
         t_fix.append(t), lat_fix.append(lat), lon_fix.append(lon), alt_fix.append(alt)
-        labels.append(f"row {r.row}")
+        labels.append(f"row {row}")
     if not t_fix:
         raise BundleError("gps.csv has no GPS fixes (rows with lat and lon)")
     for frame in frame_ids:
