@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from array import array
+from math import isfinite
 from dataclasses import dataclass
 from typing import BinaryIO, Sequence
 
@@ -54,12 +55,8 @@ class DetectionTable:
 
 
 def _box(coords: list[str], row: int) -> tuple[float, float, float, float]:
-    try:  # the fast path: four finite numbers (no message is formatted for a valid row)
-        x1, y1, x2, y2 = map(float, coords)
-        if math.isfinite(x1) and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2):
-            return x1, y1, x2, y2
-    except ValueError:
-        pass
+    """The box of a row whose coordinates are not four finite numbers: the error naming the first
+    bad one (or, when only their sum overflowed, the box)."""
     x1, y1, x2, y2 = (parse_float(text, f"detection row {row}: {c}")
                       for text, c in zip(coords, ("x1", "y1", "x2", "y2")))
     return x1, y1, x2, y2
@@ -67,13 +64,6 @@ def _box(coords: list[str], row: int) -> tuple[float, float, float, float]:
 
 def _shown(x1: float, y1: float, x2: float, y2: float) -> str:
     return f"({x1:g},{y1:g})-({x2:g},{y2:g})"
-
-
-def _code(table: dict[str, int], value: str) -> int:
-    code = table.get(value)
-    if code is None:
-        code = table[value] = len(table)
-    return code
 
 
 def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int, height: int, *,
@@ -103,7 +93,12 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
                               "detection boxes, the limit per frame")
         if not cls:
             raise BundleError(f"detection row {row} has an empty class")
-        x1, y1, x2, y2 = _box(coords, row)
+        try:  # the fast path formats no message for a valid row
+            x1, y1, x2, y2 = map(float, coords)
+        except ValueError:
+            x1, y1, x2, y2 = _box(coords, row)
+        if not isfinite(x1 + y1 + x2 + y2):
+            x1, y1, x2, y2 = _box(coords, row)
         if not (x1 < x2 and y1 < y2):
             raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} is empty or "
                               "inverted; need x1 < x2 and y1 < y2")
@@ -111,8 +106,8 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
             raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} lies outside "
                               f"the {width}x{height} image")
         frame_col.append(f)
-        track_col.append(_code(tracks, track_id) if track_id else -1)
-        cls_col.append(_code(classes, cls))
+        track_col.append(tracks.setdefault(track_id, len(tracks)) if track_id else -1)
+        cls_col.append(classes.setdefault(cls, len(classes)))
         line_col.append(row)
         box_col.extend((x1, y1, x2, y2))
         score_col.append(parse_float(score, f"detection row {row}: score") if score else np.nan)
