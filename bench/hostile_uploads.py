@@ -71,6 +71,8 @@ def _cases() -> dict:
         "PNG header 20000x20000": hb.png_header_claiming_20000,
         "JPEG header 65000x65000": hb.jpeg_header_claiming_65000,
         "3 real 8192x8192 frames": hb.real_8192_frames,
+        # What an accepted upload may now cost at most (the defaults' limits).
+        "300,000 detection rows (the limit)": lambda: hb.detection_rows(300_000),
     }
 
 

@@ -27,18 +27,22 @@ def _gps_without(frame: str, n_frames: int = 5) -> bytes:
 
 
 @functools.cache
-def million_detection_rows() -> bytes:
-    """1,000,000 well-formed detection rows (each its own track, 200 per frame) on a valid bundle
-    of 5000 tiny frames."""
+def detection_rows(n_rows: int) -> bytes:
+    """``n_rows`` well-formed detection rows (each its own track, at most 200 per frame) on a valid
+    bundle of 5000 tiny frames."""
     n_frames = 5000
     ids = bf.frame_ids(n_frames)
     png = bf.image_bytes(width=8, height=8)
     lines = [",".join(bf.DETECTIONS_HEADER)]
-    lines += [f"{ids[k % n_frames]},t{k},stop,1,1,5,5," for k in range(1_000_000)]
+    lines += [f"{ids[k % n_frames]},t{k},stop,1,1,5,5," for k in range(n_rows)]
     files = {"manifest.json": bf.manifest_bytes(), **{f"frames/{f}.png": png for f in ids},
              "gps.csv": bf.csv_bytes(bf.GPS_HEADER, bf.gps_rows(n_frames, fix_rows=False)),
              "detections.csv": "\n".join(lines).encode()}
     return bf.zip_bytes(files)
+
+
+def million_detection_rows() -> bytes:
+    return detection_rows(1_000_000)
 
 
 def unlabelled_boxes(n_frames: int, boxes_per_frame: int, seed: int = 0) -> dict[str, bytes]:

@@ -47,11 +47,12 @@ class DetectionTable:
                       ) -> list[Detection]:
         """Detection objects of the rows whose frame ``keep`` (bool per frame) marks, file order."""
         rows = np.arange(len(self)) if keep is None else np.flatnonzero(keep[self.frame])
-        return [Detection(frame_ids[self.frame[k]],
-                          self.track_ids[self.track[k]] if self.track[k] >= 0 else "",
-                          self.classes[self.cls[k]], *map(float, self.box[k]),
-                          None if np.isnan(self.score[k]) else float(self.score[k]))
-                for k in rows]
+        # Plain Python values first: indexing numpy arrays element by element is slow.
+        frame, track, cls = (a[rows].tolist() for a in (self.frame, self.track, self.cls))
+        box, score = self.box[rows].tolist(), self.score[rows].tolist()
+        return [Detection(frame_ids[f], self.track_ids[t] if t >= 0 else "", self.classes[c],
+                          *b, None if s != s else s)  # s != s: NaN, no score given
+                for f, t, c, b, s in zip(frame, track, cls, box, score)]
 
 
 def _box(coords: list[str], row: int) -> tuple[float, float, float, float]:
