@@ -122,7 +122,8 @@ def padded_frames(n_frames: int = 8, pad_bytes: int = PAD_BYTES, *,
 def _png_header_claiming(width: int, height: int) -> bytes:
     """A PNG whose IHDR claims ``width`` x ``height`` (the pixel data is a few bytes)."""
     def chunk(kind: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        crc = struct.pack(">I", zlib.crc32(kind + body))
+        return struct.pack(">I", len(body)) + kind + body + crc
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(bytes(64)))
             + chunk(b"IEND", b""))
@@ -137,7 +138,8 @@ def _jpeg_claiming(width: int, height: int) -> bytes:
 
 
 def png_header_claiming_20000() -> bytes:
-    return bf.zip_bytes({**bf.valid_files(), "frames/000000.png": _png_header_claiming(20000, 20000)})
+    files = bf.valid_files()
+    return bf.zip_bytes({**files, "frames/000000.png": _png_header_claiming(20000, 20000)})
 
 
 def jpeg_header_claiming_65000() -> bytes:

@@ -221,6 +221,8 @@ def test_entry_lying_about_its_size_is_refused(tmp_path):
     ("manifest.json", b"[" * 100_000, "nested too deeply"),
     ("manifest.json", b'{"format": "signmap-journey/1"}', "camera_id: Field required"),
     ("manifest.json", b"\xff\xfe{}", "manifest.json is not UTF-8"),
+    ("detections.csv", bf.csv_bytes(bf.DETECTIONS_HEADER, bf.detection_rows()) + b"\xff\xfe\n",
+     "detections.csv is not UTF-8 text"),
     ("frames/000001.png", bf.image_bytes("png")[:8] + b"\x00" * 40, "not a readable image"),
     ("gps.csv", bf.csv_bytes(bf.GPS_HEADER, [("000000", "0.0", "49", "8", "")] +
                              [(f, "1.0", "", "", "") for f in bf.frame_ids()[1:]]),

@@ -11,8 +11,8 @@ they declare (before anything is unpacked), manifest, the first frame's header, 
 ``decode_images`` a full decode. One entry is in memory at a time.
 
 Frames are ``frames/<stem>.jpg|.jpeg|.png`` (extensions are case-sensitive like every name in the
-bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders are
-ignored), ordered by stem. Every frame's header must be a JPEG or PNG of the first frame's size
+bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders
+are ignored), ordered by stem. Every frame's header must be a JPEG or PNG of the first frame's size
 (decoding uses raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to
 the stored pixels). GPS comes from ``app.pipeline.gps`` / ``app.pipeline.gps_exif``; detections from
 ``app.pipeline.bundle_detections``, with empty track ids filled by ``app.pipeline.tracks``.

@@ -12,10 +12,9 @@ limits (``BundleLimits``) stop a longer one as soon as it passes them.
 
 from __future__ import annotations
 
-import math
 from array import array
-from math import isfinite
 from dataclasses import dataclass
+from math import inf, isfinite
 from typing import BinaryIO, Sequence
 
 import numpy as np
@@ -77,7 +76,7 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
     lo_x = lo_y = -0.5 - BORDER_TOLERANCE_PX
     hi_x, hi_y = width - 0.5 + BORDER_TOLERANCE_PX, height - 0.5 + BORDER_TOLERANCE_PX
     per_frame = [0] * len(frame_ids)
-    max_boxes = max_boxes_per_frame if max_boxes_per_frame is not None else math.inf
+    max_boxes = max_boxes_per_frame if max_boxes_per_frame is not None else inf
     tracks: dict[str, int] = {}
     classes: dict[str, int] = {}
     frame_col, track_col, cls_col, line_col = array("i"), array("i"), array("i"), array("q")

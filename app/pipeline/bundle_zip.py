@@ -85,8 +85,8 @@ class BundleZip:
                               f"{_mb(limits.max_uncompressed_bytes)}")
         if (declared > limits.max_unpack_ratio_floor_bytes
                 and declared > limits.max_unpack_ratio * max(zip_bytes, 1)):
-            raise BundleError(f"bundle unpacks to {_mb(declared)} from a {_mb(zip_bytes)} zip, more "
-                              f"than {limits.max_unpack_ratio:g} times its size; frames are JPEG "
+            raise BundleError(f"bundle unpacks to {_mb(declared)} from a {_mb(zip_bytes)} zip, "
+                              f"more than {limits.max_unpack_ratio:g} times its size; frames are JPEG "
                               "or PNG and do not shrink in a zip, so this is padding")
 
     def __enter__(self) -> "BundleZip":

@@ -38,8 +38,8 @@ def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
                ) -> Iterator[tuple[int, tuple[str, ...]]]:
     """(line number, values) of each row of a CSV with a mandatory header, one at a time: values
     in the order of ``required`` then ``optional``, stripped, "" where the row is short or an
-    optional column is absent. More than ``max_rows`` data rows is a BundleError raised as the row after the
-    limit is read, before anything beyond it is parsed."""
+    optional column is absent. More than ``max_rows`` data rows is a BundleError, raised as the
+    first row past the limit is read."""
     expected = ",".join([*required, *optional])
     reader = csv.reader(text_lines(source))
     n_rows = 0
@@ -79,7 +79,8 @@ def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
     except csv.Error as exc:
         raise BundleError(f"{file_name} is not valid CSV near row {reader.line_num}: {exc}") from None
     except UnicodeDecodeError:
-        raise BundleError(f"{file_name} is not UTF-8 text (near row {reader.line_num + 1})") from None
+        raise BundleError(f"{file_name} is not UTF-8 text (near row {reader.line_num + 1})"
+                          ) from None
 
 
 def parse_float(text: str, where: str) -> float:
