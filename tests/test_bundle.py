@@ -183,6 +183,11 @@ def test_limits(tmp_path, limits, fragment):
     assert fragment in _error(tmp_path, bf.valid_files(), limits=limits)
 
 
+def test_gpx_point_limit(tmp_path):
+    reason = _error(tmp_path, bf.valid_files(gps="gpx"), limits=BundleLimits(max_gps_rows=3))
+    assert "gps.gpx has more than 3 track points, the limit per journey" in reason
+
+
 def test_zip_bomb_over_the_declared_limit(tmp_path):
     data = bf.zip_bytes(bf.zip_bomb_files(3 * 2**20))
     assert len(data) - len(bf.zip_bytes(bf.valid_files())) < 10_000  # 3 MiB of zeros in < 10 kB

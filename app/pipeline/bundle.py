@@ -195,7 +195,8 @@ def _validate(bz: BundleZip, limits: BundleLimits, decode: bool,
         with bz.open("gps.csv") as fp:
             gps = gps_from_csv(fp, frame_ids, max_rows=limits.max_gps_rows)
     elif "gps.gpx" in bz.files:
-        gps = gps_from_gpx(bz.read("gps.gpx"), frame_ids)
+        with bz.open("gps.gpx") as fp:
+            gps = gps_from_gpx(fp, frame_ids, max_points=limits.max_gps_rows)
     detections = None
     if "detections.csv" in bz.files:
         with bz.open("detections.csv") as fp:

@@ -147,4 +147,5 @@ class BundleLimits(BaseModel):
         16 * 2**20, description="pixels per frame (width x height), read from the image header")
     max_detections: int = Field(300_000, description="rows of detections.csv")
     max_boxes_per_frame: int = Field(200, description="detection boxes in one frame")
-    max_gps_rows: int = Field(1_000_000, description="rows of gps.csv")
+    max_gps_rows: int = Field(
+        1_000_000, description="rows of gps.csv (or track points of gps.gpx)")
