@@ -15,7 +15,6 @@ from typing import Callable
 
 import pytest
 
-from tests import bundle_factory as bf
 from tests import hostile_bundles as hb
 from tests.conftest import auth, sqlite_stack
 
