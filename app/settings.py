@@ -10,7 +10,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
-from app.pipeline.config import PipelineConfig
+from app.pipeline.config import BundleLimits, PipelineConfig
 
 
 class Settings(BaseSettings):
@@ -26,6 +26,9 @@ class Settings(BaseSettings):
                           "AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY")
     admin_key: str | None = None
     max_upload_mb: int = 2048
+    bundle: BundleLimits = Field(
+        BundleLimits(), description="what one bundle may unpack to and contain (rows, frames, "
+        "pixels), checked before the work is spent; SIGNMAP_BUNDLE__<NAME>")
     log_level: str = "INFO"
     # Admin dashboard (docs/service.md, "Dashboard").
     map_tile_url: str = Field(

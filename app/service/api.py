@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import shutil
 import time
 import uuid
 from typing import Annotated, Any
@@ -15,7 +14,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.exc import IntegrityError
 
 from app.geojson import feature_collection
-from app.pipeline.bundle import read_bundle
+from app.pipeline.bundle import check_bundle
 from app.pipeline.types import BundleError
 from app.service import queries, storage
 from app.service.auth import Principal, require
@@ -82,15 +81,11 @@ async def upload_journey(request: Request,
         if existing is not None:
             return existing
         t0 = time.perf_counter()
-        extract_dir = incoming.with_suffix(".d")
-        try:
-            journey = await run_in_threadpool(read_bundle, incoming, extract_dir,
-                                              decode_images=True)
+        try:  # checks the contract only, writing nothing; the job extracts and builds tracks
+            journey = await run_in_threadpool(check_bundle, incoming, settings.bundle)
         except BundleError as exc:
             log.info("upload by key %s rejected: %s", who.key_id, exc.reason)
             raise HTTPException(422, exc.reason) from exc
-        finally:
-            shutil.rmtree(extract_dir, ignore_errors=True)
         validate_s = time.perf_counter() - t0
         try:
             new_file = await run_in_threadpool(request.app.state.store.put, received.sha256,
@@ -105,7 +100,7 @@ async def upload_journey(request: Request,
     row = Journey(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
                   vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
                   bundle_sha256=received.sha256, bundle_bytes=received.n_bytes, status="queued",
-                  progress=0.0, n_frames=len(journey.frames), attempts=0)
+                  progress=0.0, n_frames=journey.n_frames, attempts=0)
     try:
         with session_scope(_url(request)) as session:
             session.add(row)

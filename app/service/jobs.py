@@ -79,7 +79,8 @@ def run_journey(journey_id: str, settings: Settings) -> None:
             bundle = storage.make_store(settings).fetch(sha256, workdir)
         except storage.StorageError as exc:
             raise PipelineError(stage, str(exc)) from exc
-        journey = read_bundle(bundle, workdir / "bundle", decode_images=False)
+        journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle,
+                              decode_images=False)
         progress("extract", 0.0, f"{len(journey.frames)} frames")
         stage = "pipeline"
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",
