@@ -122,6 +122,7 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
                            "n_mappable": mappable_signs(truth, min_track_frames),
                            "n_rejected": len(ev["rejected"])}
         record["ate"] = ev["ate"]
+        record["sign_errors"] = ev["sign_errors"]
     return record
 
 

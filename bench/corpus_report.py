@@ -106,7 +106,27 @@ def half_summary(records: list[dict]) -> dict:
         "signs_placed": sum(r["signs"]["n_signs"] for r in signed),
         "signs_mappable": sum(r["signs"]["n_mappable"] for r in signed),
         "abs_median_m": quantile((r["signs"]["abs_median_m"] for r in signed), 50),
-        "facing_median_deg": quantile((r["signs"].get("facing_median_deg") for r in signed), 50)}
+        "facing_median_deg": quantile((r["signs"].get("facing_median_deg") for r in signed), 50),
+        **sign_error_stats(signed)}
+
+
+def sign_error_stats(signed: list[dict]) -> dict:
+    """Over every placed sign of ``signed`` records: the absolute error's median and 90th
+    percentile, the share inside its own 95 % horizontal radius, and the median over journeys of
+    the slope of absolute error against distance along the journey (m per 100 m)."""
+    errs = [e for r in signed for e in (r.get("sign_errors") or {}).values()]
+    covered = [e["within_r95"] for e in errs if e.get("within_r95") is not None]
+    slopes = []
+    for r in signed:
+        pts = np.array([(e["s_m"], e["abs_m"]) for e in (r.get("sign_errors") or {}).values()
+                        if e.get("s_m") is not None and e.get("abs_m") is not None], float)
+        if len(pts) >= 3 and np.ptp(pts[:, 0]) > 50.0:
+            slopes.append(100.0 * np.polyfit(pts[:, 0], pts[:, 1], 1)[0])
+    return {"sign_abs_median_m": quantile((e.get("abs_m") for e in errs), 50),
+            "sign_abs_p90_m": quantile((e.get("abs_m") for e in errs), 90),
+            "r95_coverage": (sum(covered) / len(covered)) if covered else None,
+            "n_covered_of": len(covered),
+            "slope_m_per_100m": quantile(slopes, 50)}
 
 
 def normalise(text: str) -> str:
@@ -222,7 +242,15 @@ def table_summary(report: dict) -> str:
                  ["median of journeys' abs median sign error (m)",
                   *(fmt(x["abs_median_m"], 3) for x in s)],
                  ["median of journeys' median facing error (deg)",
-                  *(fmt(x.get("facing_median_deg"), 1) for x in s)]]
+                  *(fmt(x.get("facing_median_deg"), 1) for x in s)],
+                 ["all signs: abs error median / p90 (m)",
+                  *(f"{fmt(x.get('sign_abs_median_m'), 3)} / {fmt(x.get('sign_abs_p90_m'), 3)}"
+                    for x in s)],
+                 ["true position inside the 95 % horizontal radius",
+                  *(f"{fmt(100 * x['r95_coverage'], 1)} % of {x['n_covered_of']}"
+                    if x.get("r95_coverage") is not None else "–" for x in s)],
+                 ["median of journeys' abs error slope (m per 100 m)",
+                  *(fmt(x.get("slope_m_per_100m"), 3) for x in s)]]
     return "### Summary\n\n" + md_table(["", *HALVES], rows)
 
 

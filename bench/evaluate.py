@@ -35,7 +35,26 @@ def sign_errors(result: JourneyResult, truth: dict) -> dict[str, dict[str, float
                for ob in sign.observations if ob.frame_id in true_cam]
         facing_err = (angle_between_deg(sign.facing_deg, t["facing_deg"])
                       if sign.facing_deg is not None and "facing_deg" in t else float("nan"))
+        h_err_m = float(np.linalg.norm((est - true)[:2]))
+        s_by_frame = {f["frame"]: f["s_m"] for f in truth.get("frames", [])}
+        s_m = [s_by_frame[ob.frame_id] for ob in sign.observations if ob.frame_id in s_by_frame]
         out[sign.track_id] = {"abs_m": float(np.linalg.norm(est - true)),
                               "rel_m": float(np.mean(rel)) if rel else float("nan"),
-                              "std_m": float(sign.std_m), "facing_err_deg": facing_err}
+                              "std_m": float(sign.std_m), "facing_err_deg": facing_err,
+                              "h_err_m": h_err_m, "r95_h_m": sign.r95_h_m,
+                              "within_r95": (None if sign.r95_h_m is None
+                                             else bool(h_err_m <= sign.r95_h_m)),
+                              # Distance along the journey where it was seen (error vs distance).
+                              "s_m": float(np.mean(s_m)) if s_m else float("nan"),
+                              **_uncertainty_parts(sign)}
     return out
+
+
+def _uncertainty_parts(sign) -> dict:
+    """The terms of the sign's covariance, so a bench can weigh them again (uncertainty knobs)."""
+    u = sign.uncertainty
+    if u is None:
+        return {}
+    return {"cov_tri_h_m2": np.round(u.cov_triangulation_enu[:2, :2], 8).tolist(),
+            "georef_noise_m2": float(u.georef.averaged_noise_m2),
+            "georef_floor_weight": float(u.georef.floor_weight)}

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from app.pipeline import ego_motion
-from app.pipeline.run import _combine
+from app.pipeline.place_signs import PlacedPass, combine
+from app.pipeline.uncertainty import GeorefTerms
 from app.pipeline.triangulation import TriangulatedPoint
 from app.pipeline.types import CameraModel, Detection
 
@@ -151,24 +152,31 @@ def _point(xyz, sigma, rms=0.5) -> TriangulatedPoint:
                              float(max(sigma)), rms, np.zeros((2, 3)))
 
 
+def _pass(point: TriangulatedPoint, n_frames: int, alignment_rms_m: float) -> PlacedPass:
+    return PlacedPass(point, np.zeros((n_frames, 4, 4)), np.arange(n_frames), alignment_rms_m,
+                      GeorefTerms(alignment_rms_m**2, 1.0))
+
+
 def test_passes_combine_into_a_weighted_mean_between_them():
-    a = (_point([0.0, 0.0, 0.0], [0.1, 0.1, 0.1]), np.zeros((4, 4, 4)), np.arange(4), 0.0)
-    b = (_point([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]), np.zeros((2, 4, 4)), np.arange(2), 0.0)
-    xyz, cov, _ = _combine([a, b])
+    a = _pass(_point([0.0, 0.0, 0.0], [0.1, 0.1, 0.1]), 4, 0.0)
+    b = _pass(_point([1.0, 0.0, 0.0], [0.3, 0.3, 0.3]), 2, 0.0)
+    xyz, cov, _, _ = combine([a, b])
     assert abs(xyz[0] - 0.1) < 1e-9  # weights 1/0.1^2 : 1/0.3^2
     assert cov[0, 0] < 0.1**2
-    # Alignment errors dominate: the passes count about equally.
-    xyz, _, _ = _combine([a[:3] + (0.5,), b[:3] + (0.5,)])
+    # Alignment errors dominate: the passes count about equally, and their georeferencing
+    # errors (independent windows) average.
+    xyz, _, _, georef = combine([_pass(a.point, 4, 0.5), _pass(b.point, 2, 0.5)])
     assert 0.4 < xyz[0] < 0.5
+    assert 0.5**2 / 2 - 1e-3 < georef.averaged_noise_m2 < 0.5**2 and georef.floor_weight < 1.0
     # Elongated covariances in different directions: still between the passes.
-    c = (TriangulatedPoint(np.zeros(3), np.diag([0.01, 4.0, 0.01]), 2.0, 0.5, np.zeros((2, 3))),
-         None, np.arange(3), 0.3)
-    d = (TriangulatedPoint(np.array([1.0, 1.0, 0.0]), np.diag([4.0, 0.01, 0.01]), 2.0, 0.5,
-                           np.zeros((2, 3))), None, np.arange(3), 0.3)
-    xyz, _, _ = _combine([c, d])
+    c = _pass(TriangulatedPoint(np.zeros(3), np.diag([0.01, 4.0, 0.01]), 2.0, 0.5,
+                                np.zeros((2, 3))), 3, 0.3)
+    d = _pass(TriangulatedPoint(np.array([1.0, 1.0, 0.0]), np.diag([4.0, 0.01, 0.01]), 2.0, 0.5,
+                                np.zeros((2, 3))), 3, 0.3)
+    xyz, _, _, _ = combine([c, d])
     assert np.all(xyz >= -1e-9) and np.all(xyz <= 1.0 + 1e-9)
-    xyz1, _, rms1 = _combine([a])
-    np.testing.assert_array_equal(xyz1, a[0].xyz_world)
+    xyz1, _, rms1, _ = combine([a])
+    np.testing.assert_array_equal(xyz1, a.point.xyz_world)
     assert rms1 == 0.5
 
 

@@ -111,6 +111,13 @@ class PipelineConfig(BaseModel):
     max_reprojection_rms_px: float = 4.0
     max_sign_std_m: float = 2.0
     min_ray_angle_deg: float = 1.0
+    # A placed sign's uncertainty (app/pipeline/uncertainty.py): chosen on the corpus tuning half.
+    sign_georef_floor_m: float = Field(
+        0.15, description="GPS error per horizontal axis that a window alignment cannot average "
+                          "out (bias, multipath), added to every sign's covariance")
+    sign_georef_noise_gain: float = Field(
+        1.0, description="gain on the averaged GPS noise (alignment rms^2 / fixes) in a sign's "
+                         "covariance")
 
     reuse_known_calibration: bool = Field(
         False, description="skip self-calibration when a calibration of this camera is known")

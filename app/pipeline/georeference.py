@@ -236,7 +236,8 @@ class TrackPoses:
 
     keep: np.ndarray
     T_world_cam: np.ndarray
-    alignment_rms_m: float
+    alignment_rms_m: float  # GPS residual rms of the alignment that placed them
+    alignment_n: int  # GPS fixes in that alignment
 
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
@@ -258,14 +259,19 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
     if near.sum() < min_frames:
-        return TrackPoses(keep, best.T_world_cam[rows], float(best.info["rms_m"]))
+        return TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
     T_model_cam = best.poses.T_model_cam[near]
     try:
         sim, info = align_trajectory(T_model_cam[:, :3, 3], xyz_gps[frame_idx[near]],
                                      T_model_cam[:, :3, :3], R_fallback=best.sim.R)
     except ValueError:  # the car stood still by this sign: the window's alignment must do
-        return TrackPoses(keep, best.T_world_cam[rows], float(best.info["rms_m"]))
-    return TrackPoses(keep, sim.apply_poses(best.poses.T_model_cam[rows]), float(info["rms_m"]))
+        return TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
+    return TrackPoses(keep, sim.apply_poses(best.poses.T_model_cam[rows]), *_fit(info))
+
+
+def _fit(info: dict) -> tuple[float, int]:
+    """(rms_m, n) of an alignment's info."""
+    return float(info["rms_m"]), int(info.get("n", 0))
 
 
 def _chained_poses(track: SignTrack, best: AlignedWindow,
@@ -281,4 +287,4 @@ def _chained_poses(track: SignTrack, best: AlignedWindow,
     T_world_cam = np.concatenate([w.T_world_cam for w in chain])[first]
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
-    return TrackPoses(keep, T_world_cam[rows], float(best.info["rms_m"]))
+    return TrackPoses(keep, T_world_cam[rows], *_fit(best.info))

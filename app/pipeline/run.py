@@ -18,11 +18,9 @@ import numpy as np
 from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
 from app.pipeline.config import PipelineConfig
 from app.pipeline.sfm_stage import StageSfm
-from app.pipeline.facing import facing_deg
-from app.pipeline.triangulation import (TriangulationError, largest_std_m, triangulate,
-                                        undistort_pixels)
+from app.pipeline.place_signs import place_signs
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
+                                ProgressFn, no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -167,8 +165,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                             "(the GPS track does not move enough around the signs)")
 
     with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
-        signs, rejected = _triangulate_all(tracks, aligned, xyz_gps, camera, journey, origin,
-                                           config)
+        signs, rejected = place_signs(tracks, aligned, xyz_gps, camera, journey, origin, config)
 
     # Overlapping windows pose some frames twice: keep the first window's pose.
     traj_idx, first = np.unique(np.concatenate([w.poses.frame_idx for w in aligned]),
@@ -198,81 +195,3 @@ def _calibrate(journey: Journey, calib_windows, names: list[str], config: Pipeli
         log.warning("self-calibration failed; using the stored calibration of %s",
                     journey.camera_id)
         return Calibration(known_camera, "supplied")
-
-
-def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Journey,
-                     origin: geodesy.LocalFrame, config: PipelineConfig):
-    """One sign per track id: each pass of a track is triangulated from its own poses, the passes
-    that succeed are combined (``_combine``)."""
-    passes: dict[str, list] = {}
-    classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
-    for track in tracks:
-        passes.setdefault(track.track_id, []).append(
-            _triangulate_pass(track, aligned, xyz_gps, camera, config))
-    signs: list[Sign] = []
-    rejected: list[RejectedSign] = []
-    for track_id, results in passes.items():
-        cls = classes[track_id]
-        placed = [r for r in results if not isinstance(r, str)]
-        if not placed:
-            rejected.append(RejectedSign(track_id, cls, "; ".join(dict.fromkeys(results))))
-            continue
-        xyz, cov, rms_px = _combine(placed)
-        std_m = largest_std_m(cov)
-        if std_m > config.max_sign_std_m:
-            rejected.append(RejectedSign(track_id, cls,
-                                         f"uncertainty {std_m:.2f} m > {config.max_sign_std_m} m"))
-            continue
-        T = np.concatenate([r[1] for r in placed])
-        frame_ids = [journey.frames[i].frame_id for r in placed for i in r[2]]
-        p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
-        lat, lon, alt = origin.to_geodetic(xyz[None, :])
-        signs.append(Sign(
-            track_id, cls, xyz, float(lat[0]), float(lon[0]),
-            float(alt[0]) if journey.has_altitude else None, std_m, rms_px,
-            [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, p_cam)],
-            facing_deg(xyz, T[:, :3, 3]),
-        ))
-    return signs, rejected
-
-
-def _triangulate_pass(track, aligned, xyz_gps, camera: CameraModel, config: PipelineConfig):
-    """(point, T_world_cam, frame_idx) of one pass, or the reason it cannot be placed."""
-    tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
-                                  margin=config.sign_window_margin_frames,
-                                  min_frames=config.short_alignment_min_frames)
-    if tp is None or tp.keep.sum() < 2:
-        return "its frames were not reconstructed"
-    px = undistort_pixels(camera, track.px[tp.keep])
-    try:
-        point = triangulate(tp.T_world_cam, px, camera.K,
-                            min_ray_angle_deg=config.min_ray_angle_deg,
-                            max_rms_px=config.max_reprojection_rms_px)
-    except TriangulationError as exc:
-        return str(exc)
-    if point.std_m > config.max_sign_std_m:
-        return f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m"
-    return point, tp.T_world_cam, track.frame_idx[tp.keep], tp.alignment_rms_m
-
-
-def _combine(placed) -> tuple[np.ndarray, np.ndarray, float]:
-    """(xyz, cov, rms_px) of one sign from its passes' triangulations ``(point, T, frame_idx,
-    alignment_rms_m)``: their weighted mean, weights 1 / (std_m^2 + alignment_rms_m^2).
-
-    Each pass comes from its own stretch of trajectory, placed by the GPS there, whose error (the
-    GPS bias over the window or chain, ~0.2-0.5 m) is not in the triangulation's covariance and
-    dominates it; a
-    full inverse-covariance mean of such passes can land outside both (measured on loop-300,
-    short alignment: 0.81 m from passes 0.62 and 0.37 m off). A scalar weight keeps the mean
-    between the passes.
-    """
-    if len(placed) == 1:
-        point = placed[0][0]
-        return point.xyz_world, point.cov_world, point.rms_px
-    w = np.array([1.0 / (r[0].std_m**2 + r[3]**2) for r in placed])
-    w /= w.sum()
-    xyz = sum(wi * r[0].xyz_world for wi, r in zip(w, placed))
-    cov = sum(wi**2 * r[0].cov_world for wi, r in zip(w, placed))
-    n = [len(r[2]) for r in placed]
-    rms_px = float(np.sqrt(sum(k * r[0].rms_px**2 for k, r in zip(n, placed)) / sum(n)))
-    return xyz, cov, rms_px

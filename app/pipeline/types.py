@@ -22,6 +22,8 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from app.pipeline.uncertainty import GeorefTerms
+
 
 @dataclass(frozen=True)
 class CameraModel:
@@ -146,6 +148,15 @@ class SignObservation:
     p_cam: tuple[float, float, float]
 
 
+@dataclass(frozen=True)
+class SignUncertainty:
+    """Where a sign's ``cov_enu`` comes from (app.pipeline.uncertainty): the triangulation's own
+    (3, 3) m^2 and the georeferencing terms (``GeorefTerms``) the knobs weighed."""
+
+    cov_triangulation_enu: np.ndarray
+    georef: GeorefTerms
+
+
 @dataclass
 class Sign:
     """One triangulated sign of a journey."""
@@ -156,10 +167,14 @@ class Sign:
     lat_deg: float
     lon_deg: float
     alt_m: float | None
-    std_m: float  # 1-sigma position uncertainty (sqrt of the largest covariance eigenvalue)
+    std_m: float  # 1-sigma position uncertainty (sqrt of cov_enu's largest eigenvalue)
     reprojection_rms_px: float
     observations: list[SignObservation]
     facing_deg: float | None = None  # compass bearing of the face (app.pipeline.facing)
+    # (3, 3) m^2 in the journey's ENU frame, triangulation + georeferencing (app.pipeline.uncertainty)
+    cov_enu: np.ndarray | None = None
+    r95_h_m: float | None = None  # horizontal radius holding the true position with 95 % probability
+    uncertainty: SignUncertainty | None = None
 
 
 @dataclass(frozen=True)

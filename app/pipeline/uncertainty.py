@@ -1,0 +1,57 @@
+"""How far a placed sign may be from where it really is: its covariance in the journey's ENU frame
+(metres), the triangulation's own plus what georeferencing adds.
+
+The triangulation covariance (``app.pipeline.triangulation``) counts only the pixel noise of the
+detections on fixed poses: a few centimetres, while the real errors are tenths of a metre. The
+sign inherits the error of the window alignment that placed its poses: the GPS noise the Umeyama
+fit averages (``alignment_rms_m`` over ``n`` fixes) and the part of the GPS error it cannot
+average because it is common to the whole window (a receiver's slowly drifting bias, multipath
+along a street): ``georef_floor_m`` per horizontal axis, twice that vertically (GPS altitude is
+about twice as noisy). Both enter as an isotropic term; the floor and the gain on the averaged
+noise are knobs of ``PipelineConfig`` chosen on the corpus's tuning half.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import quad
+from scipy.optimize import brentq
+from scipy.special import erf
+from scipy.stats import norm
+
+
+@dataclass(frozen=True)
+class GeorefTerms:
+    """What the window alignments add to a sign's error, before the knobs weigh it: the averaged
+    GPS noise ``sum w_i^2 rms_i^2 / n_i`` (m^2) and the weight ``sum w_i^2`` of the floor, over the
+    passes ``i`` combined with weights ``w_i`` (one pass: ``rms^2 / n`` and 1)."""
+
+    averaged_noise_m2: float
+    floor_weight: float
+
+    @staticmethod
+    def of_alignment(alignment_rms_m: float, n_fixes: int) -> "GeorefTerms":
+        return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0)
+
+    def cov_m2(self, floor_m: float, noise_gain: float) -> np.ndarray:
+        """(3, 3) ENU covariance; altitude counts twice the horizontal error."""
+        h = noise_gain * self.averaged_noise_m2 + self.floor_weight * floor_m**2
+        return np.diag([h, h, 4.0 * h])
+
+
+def horizontal_radius_m(cov_enu: np.ndarray, p: float = 0.95) -> float:
+    """Radius of the circle round the estimate that holds the true position with probability ``p``,
+    for the horizontal (east, north) part of ``cov_enu`` (exact for a Gaussian, elongated or not)."""
+    lam2, lam1 = np.clip(np.linalg.eigvalsh(np.asarray(cov_enu, float)[:2, :2]), 1e-12, None)
+
+    def inside(r: float) -> float:  # P(lam1 z1^2 + lam2 z2^2 <= r^2) - p, z1, z2 ~ N(0, 1)
+        a = r / np.sqrt(lam2)
+        given_z2 = quad(lambda z: norm.pdf(z) * erf(np.sqrt(max(r * r - lam2 * z * z, 0.0)
+                                                            / (2.0 * lam1))),
+                        -min(a, 40.0), min(a, 40.0), limit=200)[0]
+        return given_z2 - p
+
+    hi = np.sqrt(-2.0 * np.log(1.0 - p) * lam1) + 4.0 * np.sqrt(lam2)  # surely outside
+    return float(brentq(inside, 0.0, hi, xtol=1e-6))
