@@ -35,7 +35,8 @@ Every call takes `Authorization: Bearer <key>`; errors are JSON `{"detail": ...}
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """The API for ``settings`` (default: from the environment). The database must be migrated."""
+    """The API for ``settings`` (default: from the environment). It refuses to start
+    (``startup.StartupError``) unless the database is reachable and migrated and data_dir writable."""
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -61,8 +62,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(_JsonErrors)
 
     @app.get("/api/v1/health", summary="Liveness and database check (no key needed)",
-             tags=["ops"], response_model=dict[str, str], responses={503: {"model": ErrorOut,
-                                            "description": "the database is unreachable"}})
+             tags=["ops"], response_model=dict[str, str],
+             responses={503: {"model": ErrorOut, "description": "the database is unreachable"}})
     def health():
         try:
             with session_scope(settings.effective_database_url) as session:
