@@ -36,6 +36,13 @@ class Settings(BaseSettings):
         description="base map tiles of the dashboard; without them signs show on a plain background")
     admin_session_max_age_s: int = Field(12 * 3600, description="dashboard sign-in lifetime")
 
+    # Leftovers of crashes (see docs/service.md, "Jobs and recovery").
+    incoming_max_age_s: float = Field(
+        3600.0, description="an upload in incoming/ untouched this long was left by a dead API "
+                            "process and is deleted; longer than any live upload takes")
+    sweep_interval_s: float = Field(
+        300.0, description="how often the API sweeps orphaned uploads and expired sign-ins")
+
     # Jobs (see docs/service.md, "Jobs and recovery").
     embedded_worker: bool = Field(
         True, description="without a broker, run jobs in the API process; off = uploads stay queued")

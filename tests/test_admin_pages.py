@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 
 from app.service.admin.session import COOKIE
 from app.service.db import session_scope
-from app.service.models import (ApiKey, CalibrationRecord, Journey, JourneyCoverage,
+from app.service.models import (AdminSession, ApiKey, CalibrationRecord, Journey, JourneyCoverage,
                                 JourneySign)
 from tests.browser.seed import add_journey
 from tests.conftest import ADMIN_KEY, auth, sqlite_stack
@@ -70,12 +70,12 @@ def test_sign_in_sets_a_strict_http_only_cookie_and_sign_out_ends_it(client, sta
     value = answer.cookies[COOKIE]
     assert client.get("/admin/journeys").status_code == 200
     with session_scope(stack.url) as session:
-        assert session.scalar(select(func.count()).select_from(ApiKey)
-                              .where(ApiKey.role == "admin")) == 1  # the session's own key
+        assert session.scalar(select(func.count()).select_from(ApiKey)) == 0  # no key was made
+        assert session.scalar(select(func.count()).select_from(AdminSession)) == 1
 
     assert client.post("/admin/logout", follow_redirects=False).status_code == 303
     with session_scope(stack.url) as session:
-        assert session.scalar(select(func.count()).select_from(ApiKey)) == 0
+        assert session.scalar(select(func.count()).select_from(AdminSession)) == 0
     client.cookies.set(COOKIE, value, path="/admin")  # a replayed cookie is dead after sign-out
     assert client.get("/admin/journeys", follow_redirects=False).status_code == 303
 

@@ -1,14 +1,18 @@
 """End to end on the real stack: PostgreSQL + Redis + real ``signmap worker`` (Celery) processes.
 
 1. A rendered journey is uploaded, processed by the worker and mapped within 1 m of the truth.
-2. The same bytes from another fleet: the worker is SIGKILLed (with its COLMAP children) in the
-   middle of the job; a new worker finds the journey's heartbeat stale, runs it again and stores the
-   same signs as the uninterrupted run, once.
+2. The same bytes from another fleet: the worker's process is SIGKILLed in the middle of the job
+   (as kill -9 or the OOM killer would); its COLMAP children die with it, a new worker finds the
+   journey's heartbeat stale, runs it again, stores the same signs as the uninterrupted run, once,
+   and deletes the killed run's work dir.
 """
 
 from __future__ import annotations
 
+import os
 import signal
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -67,6 +71,19 @@ def test_real_stack_maps_a_synthetic_journey(real_stack, uninterrupted_run, turn
     assert max(map_sign_errors_m(mapped, truth)) < 1.0
 
 
+def _live_members(pgid: int) -> list[int]:
+    """Processes of group ``pgid`` that are not zombies (in a container PID 1 may never reap)."""
+    pids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            pids.append(int(stat.parent.name))
+    return pids
+
+
 # tests/test_two_hosts.py kills a worker mid-job in the default suite; this longer variant also
 # compares the finished signs with an uninterrupted run.
 @pytest.mark.extended
@@ -80,7 +97,16 @@ def test_a_killed_workers_journey_is_finished_by_the_next_worker(real_stack, uni
         journey_id = upload(client, fleet, turn_journey_bundle[0].read_bytes())
         poll_journey(client, auth(fleet), journey_id, worker=worker_a, until=lambda b: (
             b["status"] == "running" and b["stage"] not in ("start", "extract", "turns")))
-        assert worker_a.kill(signal.SIGKILL) == -signal.SIGKILL
+        deadline = time.monotonic() + 120
+        while len(_live_members(worker_a.proc.pid)) < 3 and time.monotonic() < deadline:
+            time.sleep(0.2)  # the worker, COLMAP's process(es) and multiprocessing's tracker
+        assert len(_live_members(worker_a.proc.pid)) >= 3, "no COLMAP process to leave behind"
+        os.kill(worker_a.proc.pid, signal.SIGKILL)  # the worker only, not its process group
+        assert worker_a.proc.wait(30) == -signal.SIGKILL
+        deadline = time.monotonic() + 10
+        while _live_members(worker_a.proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _live_members(worker_a.proc.pid) == [], "COLMAP children outlived their worker"
         with session_scope(real_stack.url) as session:
             row = session.get(Journey, journey_id)
             assert (row.status, row.attempts) == ("running", 1)
@@ -94,6 +120,8 @@ def test_a_killed_workers_journey_is_finished_by_the_next_worker(real_stack, uni
                               headers=auth(fleet)).json()["features"]
     assert "its worker stopped beating; sent again" in (tmp_path / "worker-b.log").read_text()
     assert (body["status"], body["attempts"]) == ("done", 2), body["error"]
+    work = real_stack.settings.data_dir / "work"
+    assert not work.exists() or list(work.iterdir()) == [], "the killed run's work dir is swept"
     with session_scope(real_stack.url) as session:
         n_rows = session.scalar(select(func.count()).select_from(JourneySign)
                                 .where(JourneySign.journey_id == journey_id))

@@ -2,7 +2,7 @@
 
 Every worker sweeps the database at start and then every half ``stale_after_s``: a journey left
 ``running`` with a heartbeat older than ``stale_after_s`` (its worker was killed) is put back to
-``queued`` and sent again. Duplicate deliveries are harmless: ``run_journey`` claims the row first.
+``queued`` and sent again, and the work dirs of runs no longer running are deleted. Duplicate deliveries are harmless: ``run_journey`` claims the row first.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from celery.signals import worker_ready, worker_shutdown
 
-from app.service import fusion_job, jobstate
+from app.service import fusion_job, jobstate, sweep
 from app.service.db import session_scope
 from app.service.jobs import run_journey
 from worker.celery_app import FUSE_JOURNEY, RUN_JOURNEY, app, settings
@@ -43,6 +43,8 @@ def sweep_once() -> list[str]:
         for journey_id in ids:
             app.send_task(RUN_JOURNEY, args=[journey_id], queue=settings.celery_queue)
             log.warning("journey %s: its worker stopped beating; sent again", journey_id)
+    # Work dirs of runs that no longer run (the requeued ones' included), e.g. of a killed worker.
+    sweep.sweep_work(settings.data_dir, settings.effective_database_url)
     return ids
 
 

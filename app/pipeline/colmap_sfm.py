@@ -15,6 +15,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import logging
 import multiprocessing
+import os
 import shutil
 import time
 from dataclasses import dataclass, field, replace
@@ -23,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from app.pipeline.lifeline import die_with_parent
 from app.pipeline.types import CameraModel, PipelineError
 
 log = logging.getLogger(__name__)
@@ -118,13 +120,12 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     Windows are independent (each maps its own copy of the database), and COLMAP's incremental
     mapper keeps about one core busy (CPU time ~1.1x wall on turn-70): ``map_workers`` processes
     map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
-    ctx = multiprocessing.get_context("spawn")
     workers = max(1, min(job.features.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
     light = replace(job, extract_names=[], imported=None, features=replace(
         job.features, threads=max(1, job.features.threads // workers)))
     try:
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with colmap_pool(workers) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()
             t0 = time.perf_counter()
             futures = [pool.submit(_map_in_child, light, i) for i in range(len(job.windows))]
@@ -144,6 +145,13 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     log.info("COLMAP: %d windows mapped in %.1f s by %d processes (per window %s s)",
              len(results), timings_s["map"], workers, [r.mapping_s for r in results])
     return results
+
+
+def colmap_pool(workers: int) -> cf.ProcessPoolExecutor:
+    """The pool COLMAP runs in: spawned (not forked) processes that die with this one."""
+    return cf.ProcessPoolExecutor(max_workers=workers,
+                                  mp_context=multiprocessing.get_context("spawn"),
+                                  initializer=die_with_parent, initargs=(os.getpid(),))
 
 
 # --- everything below runs in the child processes ------------------------------------------------

@@ -6,14 +6,19 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi.responses import JSONResponse
 from sqlalchemy import text
+from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
+from app.service import startup
 from app.service.admin import mount_admin
 from app.service.api import router
 from app.service.map_api import router as map_router
 from app.service.db import session_scope
 from app.service.queue import make_queue
+from app.service.schemas import ErrorOut
 from app.service.storage import make_store
+from app.service.sweep import Sweeper
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -31,17 +36,22 @@ Every call takes `Authorization: Bearer <key>`; errors are JSON `{"detail": ...}
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """The API for ``settings`` (default: from the environment). The database must be migrated."""
+    """The API for ``settings`` (default: from the environment). It refuses to start
+    (``startup.StartupError``) unless the database is reachable and migrated and data_dir writable."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        startup.check(settings)  # raises StartupError: no "up" line, no requests answered
+        sweeper = Sweeper(settings)
+        sweeper.start()
         app.state.queue.start()
-        log.info("Signmap API up: database %s, jobs via %s", settings.effective_database_url
-                 .split("@")[-1], type(app.state.queue).__name__)
+        log.info("Signmap API up: database %s, jobs via %s",
+                 startup.safe_url(settings.effective_database_url), type(app.state.queue).__name__)
         try:
             yield
         finally:
+            sweeper.stop()
             app.state.queue.stop()
 
     app = FastAPI(title="Signmap", version="1", description=DESCRIPTION, lifespan=lifespan)
@@ -51,12 +61,55 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(router)
     app.include_router(map_router)
     mount_admin(app)
+    app.add_middleware(_JsonErrors)
 
     @app.get("/api/v1/health", summary="Liveness and database check (no key needed)",
-             tags=["ops"])
-    def health() -> dict[str, str]:
-        with session_scope(settings.effective_database_url) as session:
-            session.execute(text("SELECT 1"))
+             tags=["ops"], response_model=dict[str, str],
+             responses={503: {"model": ErrorOut, "description": "the database is unreachable"}})
+    def health():
+        try:
+            with session_scope(settings.effective_database_url) as session:
+                session.execute(text("SELECT 1"))
+        except SQLAlchemyError as exc:
+            log.warning("health: database %s unreachable: %s",
+                        startup.safe_url(settings.effective_database_url), exc)
+            return JSONResponse({"detail": f"the database is unreachable "
+                                           f"({type(exc).__name__})"}, 503)
         return {"status": "ok"}
 
     return app
+
+
+class _JsonErrors:
+    """Every unhandled exception answers JSON ``{"detail": ...}``, never plain text, and is logged
+    once with its traceback. A plain ASGI middleware rather than an exception handler for
+    ``Exception``: Starlette re-raises after such a handler, and the server would log it twice."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def send_tracked(message):
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_tracked)
+        except Exception as exc:
+            if started:  # too late for another answer: the server logs it and drops the connection
+                raise
+            where = f"{scope.get('method')} {scope.get('path')}"
+            if isinstance(exc, OperationalError):  # database down, connection lost, locked
+                log.error("%s: database error", where, exc_info=exc)
+                answer = JSONResponse({"detail": "the database is unavailable; try again later"},
+                                      503)
+            else:
+                log.error("%s: internal error", where, exc_info=exc)
+                answer = JSONResponse({"detail": f"internal error ({type(exc).__name__}); "
+                                                 f"see the server log"}, 500)
+            await answer(scope, receive, send)

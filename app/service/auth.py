@@ -16,6 +16,8 @@ from sqlalchemy.orm import Session
 from app.service.db import session_scope
 from app.service.models import ROLES, ApiKey
 
+# The ASGI scope key under which the dashboard's in-process API calls carry their principal.
+DASHBOARD_PRINCIPAL = "signmap.dashboard_principal"
 _bearer = HTTPBearer(auto_error=False, description="an API key from `signmap keys create`")
 
 
@@ -57,6 +59,10 @@ def require(*roles: str) -> Callable[..., Principal]:
 
     def dependency(request: Request,
                    credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> Principal:
+        # The dashboard's in-process calls (admin.session.as_principal); HTTP cannot set this.
+        principal = request.scope.get(DASHBOARD_PRINCIPAL)
+        if principal is not None:
+            return principal
         if credentials is None or credentials.scheme.lower() != "bearer":
             raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer API key",
                                 headers={"WWW-Authenticate": "Bearer"})

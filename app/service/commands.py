@@ -17,24 +17,35 @@ def _logging(settings: Settings) -> None:
 def serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from app.service import startup
     from app.service.app import create_app
     from app.service.db import upgrade
 
     settings = Settings()
     _logging(settings)
-    if settings.effective_database_url.startswith("sqlite"):
-        # The embedded default must work out of the box; PostgreSQL is migrated by `db upgrade`.
-        upgrade(settings.effective_database_url)
+    try:
+        startup.check_data_dir(settings.data_dir)
+        if settings.effective_database_url.startswith("sqlite"):
+            # The embedded default must work out of the box; PostgreSQL is migrated by `db upgrade`.
+            upgrade(settings.effective_database_url)
+        startup.check_database(settings.effective_database_url)
+    except startup.StartupError as exc:
+        raise SystemExit(f"signmap serve: {exc}") from None
     uvicorn.run(create_app(settings), host=args.host, port=args.port, log_config=None)
     return 0
 
 
 def worker(args: argparse.Namespace) -> int:
+    from app.service import startup
     from worker.celery_app import app, settings
 
     if not settings.broker_url:
         raise SystemExit("signmap worker needs SIGNMAP_BROKER_URL (without it `signmap serve` "
                          "runs jobs itself)")
+    try:
+        startup.check(settings)
+    except startup.StartupError as exc:
+        raise SystemExit(f"signmap worker: {exc}") from None
     argv = ["worker", "--loglevel", settings.log_level, "--queues", settings.celery_queue,
             "--without-gossip", "--without-mingle"]
     if args.hostname:

@@ -4,7 +4,8 @@ A dispatcher thread takes journey ids from an in-memory queue and runs each job 
 ``jobs.run_journey`` the Celery task calls) in a spawned child process of its own process group:
 the API stays responsive, a crash of the job cannot take the API down, and stopping the API can end
 the job with its COLMAP grandchildren. The queue is memory only, so on start (and every half
-``stale_after_s``) the database is swept: stale running journeys are requeued, queued ones submitted.
+``stale_after_s``) the database is swept: stale running journeys are requeued, queued ones submitted
+(and work dirs of runs no longer running deleted).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import threading
 
 from app.service import jobstate
 from app.service.db import session_scope
+from app.service.sweep import sweep_work
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -83,13 +85,15 @@ class EmbeddedWorker:
                 pass
 
     def sweep(self) -> None:
-        """Requeue stale running journeys and submit every queued one."""
+        """Requeue stale running journeys, delete the work dirs of runs no longer running and
+        submit every queued journey."""
         with session_scope(self.settings.effective_database_url) as session:
             requeued = jobstate.requeue_stale(session, self.settings.stale_after_s,
                                               self.settings.max_attempts)
             ids = jobstate.queued_ids(session)
         if requeued:
             log.warning("requeued journeys with a stale heartbeat: %s", ", ".join(requeued))
+        sweep_work(self.settings.data_dir, self.settings.effective_database_url)
         for journey_id in ids:
             self.submit(journey_id)
 

@@ -49,6 +49,21 @@ class ApiKey(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
+class AdminSession(Base):
+    """A dashboard sign-in: the SHA-256 of the opaque token in its cookie (never a key), whose key
+    signed in (NULL: the environment's admin key; deleting the key ends its sessions) and when it
+    stops working."""
+
+    __tablename__ = "admin_sessions"
+
+    token_sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
+    key_id: Mapped[int | None] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"),
+                                               index=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    expires_at: Mapped[datetime] = mapped_column(index=True)
+
+
 class Journey(Base):
     __tablename__ = "journeys"
     # The same bytes from the same owner are one journey (see docs/service.md, "Re-uploads").

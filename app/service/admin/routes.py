@@ -15,14 +15,15 @@ from fastapi.templating import Jinja2Templates
 
 from app.service import storage
 from app.service.admin import data, media
-from app.service.admin.session import (COOKIE, cookie_args, session_key, sign_in, sign_out)
+from app.service.admin.session import (COOKIE, DashboardSession, as_principal, cookie_args,
+                                       current_session, sign_in, sign_out)
 from app.service.db import session_scope
 from app.service.models import STATUSES, Journey, JourneyCoverage, JourneySign
 
 log = logging.getLogger(__name__)
 templates = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
 router = APIRouter(prefix="/admin", include_in_schema=False)
-SessionKey = Annotated[str, Depends(session_key)]
+SignedIn = Annotated[DashboardSession, Depends(current_session)]
 DELETE_ROUTE = "/api/v1/journeys/{journey_id}"
 
 
@@ -64,9 +65,9 @@ def login(request: Request, key: Annotated[str, Form()] = "") -> Response:
 
 
 @router.post("/logout")
-def logout(request: Request, key: SessionKey) -> Response:
+def logout(request: Request, signed_in: SignedIn) -> Response:
     _same_origin(request)
-    sign_out(_settings(request), key)
+    sign_out(_settings(request), signed_in.token_sha256)
     response = RedirectResponse("/admin/login", status_code=303)
     response.delete_cookie(COOKIE, path="/admin")
     return response
@@ -74,12 +75,12 @@ def logout(request: Request, key: SessionKey) -> Response:
 
 @router.get("")
 @router.get("/")
-def home(_key: SessionKey) -> Response:
+def home(_signed_in: SignedIn) -> Response:
     return RedirectResponse("/admin/journeys", status_code=303)
 
 
 @router.get("/journeys")
-def journeys(request: Request, _key: SessionKey, status: str | None = None,
+def journeys(request: Request, _signed_in: SignedIn, status: str | None = None,
              camera: str | None = None, page: Annotated[int, Query(ge=1)] = 1) -> HTMLResponse:
     with session_scope(_url(request)) as session:
         listing = data.list_journeys(session, status or None, camera or None, page)
@@ -89,14 +90,14 @@ def journeys(request: Request, _key: SessionKey, status: str | None = None,
 
 
 @router.get("/journeys/progress.json")
-def journeys_progress(request: Request, _key: SessionKey, ids: str = "") -> dict:
+def journeys_progress(request: Request, _signed_in: SignedIn, ids: str = "") -> dict:
     wanted = [i for i in ids.split(",") if i][:500]
     with session_scope(_url(request)) as session:
         return data.progress(session, wanted)
 
 
 @router.post("/journeys/{journey_id}/retry")
-def retry(request: Request, journey_id: str, _key: SessionKey) -> Response:
+def retry(request: Request, journey_id: str, _signed_in: SignedIn) -> Response:
     _same_origin(request)
     with session_scope(_url(request)) as session:
         requeued = data.requeue_failed(session, journey_id)
@@ -115,13 +116,11 @@ def _has_delete_route(request: Request) -> bool:
 
 
 @router.post("/journeys/{journey_id}/delete")
-async def delete(request: Request, journey_id: str, key: SessionKey) -> Response:
+async def delete(request: Request, journey_id: str, signed_in: SignedIn) -> Response:
     _same_origin(request)
     if _has_delete_route(request):  # the service's own deletion (re-fuses the map around it)
-        transport = httpx.ASGITransport(app=request.app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://dashboard") as client:
-            answer = await client.delete(f"/api/v1/journeys/{journey_id}",
-                                         headers={"Authorization": f"Bearer {key}"})
+        async with _api_client(request, signed_in) as client:
+            answer = await client.delete(f"/api/v1/journeys/{journey_id}")
         if answer.status_code >= 400:
             raise HTTPException(answer.status_code, answer.json().get("detail", answer.text))
     else:
@@ -140,7 +139,7 @@ def _journey(session, journey_id: str) -> Journey:
 
 
 @router.get("/journeys/{journey_id}")
-def journey(request: Request, journey_id: str, _key: SessionKey) -> HTMLResponse:
+def journey(request: Request, journey_id: str, _signed_in: SignedIn) -> HTMLResponse:
     settings = _settings(request)
     with session_scope(_url(request)) as session:
         row = _journey(session, journey_id)
@@ -162,7 +161,7 @@ def journey(request: Request, journey_id: str, _key: SessionKey) -> HTMLResponse
 
 
 @router.get("/journeys/{journey_id}/crop.png")
-def crop(request: Request, journey_id: str, track: str, frame: str, _key: SessionKey) -> Response:
+def crop(request: Request, journey_id: str, track: str, frame: str, _signed_in: SignedIn) -> Response:
     settings = _settings(request)
     with session_scope(_url(request)) as session:
         row = _journey(session, journey_id)
@@ -184,32 +183,36 @@ def crop(request: Request, journey_id: str, track: str, frame: str, _key: Sessio
 
 
 @router.get("/map")
-def map_page(request: Request, _key: SessionKey) -> HTMLResponse:
+def map_page(request: Request, _signed_in: SignedIn) -> HTMLResponse:
     return _page(request, "map.html", tile_url=_settings(request).map_tile_url)
 
 
-async def _pass_through(request: Request, key: str, path: str) -> Response:
-    """A public GET answered unchanged; the session's key is added here and stays server-side."""
-    transport = httpx.ASGITransport(app=request.app)
-    async with httpx.AsyncClient(transport=transport, base_url="http://dashboard") as client:
-        answer = await client.get(path, params=request.query_params.multi_items(),
-                                  headers={"Authorization": f"Bearer {key}"})
+def _api_client(request: Request, signed_in: DashboardSession) -> httpx.AsyncClient:
+    """A client of this app's public API, in-process, calling as the signed-in operator."""
+    transport = httpx.ASGITransport(app=as_principal(request.app, signed_in.principal))
+    return httpx.AsyncClient(transport=transport, base_url="http://dashboard")
+
+
+async def _pass_through(request: Request, signed_in: DashboardSession, path: str) -> Response:
+    """A public GET answered unchanged, made as the signed-in operator."""
+    async with _api_client(request, signed_in) as client:
+        answer = await client.get(path, params=request.query_params.multi_items())
     return Response(answer.content, status_code=answer.status_code,
                     media_type=answer.headers.get("content-type"))
 
 
 @router.get("/api/signs")
-async def map_signs(request: Request, key: SessionKey) -> Response:
-    return await _pass_through(request, key, "/api/v1/signs")
+async def map_signs(request: Request, signed_in: SignedIn) -> Response:
+    return await _pass_through(request, signed_in, "/api/v1/signs")
 
 
 @router.get("/api/signs/{sign_id}")
-async def map_sign(request: Request, sign_id: str, key: SessionKey) -> Response:
-    return await _pass_through(request, key, f"/api/v1/signs/{quote(sign_id, safe='')}")
+async def map_sign(request: Request, sign_id: str, signed_in: SignedIn) -> Response:
+    return await _pass_through(request, signed_in, f"/api/v1/signs/{quote(sign_id, safe='')}")
 
 
 @router.get("/cameras")
-def cameras(request: Request, _key: SessionKey) -> HTMLResponse:
+def cameras(request: Request, _signed_in: SignedIn) -> HTMLResponse:
     with session_scope(_url(request)) as session:
         records = data.calibrations(session)
     by_camera: dict[str, list] = {}

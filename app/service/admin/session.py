@@ -1,90 +1,98 @@
-"""Dashboard sign-in: an admin key posted once buys a session backed by its own short-lived admin
-key (stored hashed like any other), carried in a signed, http-only, SameSite=strict cookie.
+"""Dashboard sign-in: an admin key posted once buys a session, carried in an http-only,
+SameSite=strict cookie that holds only an opaque random token.
 
-The session key is what the dashboard uses to call the public API on the operator's behalf, so the
-operator's key is never stored anywhere; logging out or expiry deletes the session key's row.
+The server keeps the token's SHA-256 in ``admin_sessions`` with who signed in and when the session
+expires, so the cookie is worth nothing elsewhere: it is not an API key (a Bearer request with it
+gets 401), it stops working the moment it expires, and signing out deletes its row. Expired rows
+are swept at every sign-in and by the API's periodic sweep (``app.service.sweep``).
+
+The dashboard calls the public API in-process on the signed-in operator's behalf (``as_principal``):
+the principal travels in the ASGI scope, which no HTTP client can set.
 """
 
 from __future__ import annotations
 
-import os
 import secrets
+from dataclasses import dataclass
 from datetime import timedelta
-from pathlib import Path
 
 from fastapi import Request
-from itsdangerous import BadSignature, URLSafeTimedSerializer
-from sqlalchemy import delete
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
 
-from app.service.auth import create_key, key_sha256, lookup_key
+from app.service.auth import DASHBOARD_PRINCIPAL, Principal, key_sha256, lookup_key
 from app.service.db import session_scope
-from app.service.models import ApiKey, utc_now
+from app.service.models import ApiKey, AdminSession, utc_now
 from app.settings import Settings
 
 COOKIE = "signmap_admin"
-SESSION_KEY_PREFIX = "dashboard-session"
 
 
 class NotSignedIn(Exception):
-    """Raised by ``session_key``; the router turns it into a redirect to the sign-in page."""
+    """Raised by ``current_session``; the router turns it into a redirect to the sign-in page."""
 
 
-def _secret(data_dir: Path) -> str:
-    """The deployment's signing secret, created once under data_dir (shared by every API process)."""
-    path = data_dir / "admin-session.secret"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        except FileExistsError:  # another process created it first
-            pass
-        else:
-            with os.fdopen(fd, "w") as f:
-                f.write(secrets.token_hex(32))
-    return path.read_text().strip()
-
-
-def _serializer(settings: Settings) -> URLSafeTimedSerializer:
-    return URLSafeTimedSerializer(_secret(settings.data_dir), salt="signmap-admin-session")
+@dataclass(frozen=True)
+class DashboardSession:
+    token_sha256: str
+    principal: Principal
 
 
 def sign_in(settings: Settings, key: str) -> str | None:
-    """The cookie value for a valid admin ``key``; None for an unknown or non-admin key."""
+    """The cookie value (a fresh opaque token) for a valid admin ``key``; None for an unknown or
+    non-admin key."""
+    token = secrets.token_urlsafe(32)
     with session_scope(settings.effective_database_url) as session:
         principal = lookup_key(session, key, settings.admin_key)
         if principal is None or principal.role != "admin":
             return None
-        _forget_expired(session, settings.admin_session_max_age_s)
-        session_key = create_key(session, "admin", f"{SESSION_KEY_PREFIX} of {principal.name}"[:200])
-    return _serializer(settings).dumps(session_key)
+        forget_expired(session)
+        now = utc_now()
+        session.add(AdminSession(token_sha256=key_sha256(token), key_id=principal.key_id,
+                                 name=principal.name[:200], created_at=now,
+                                 expires_at=now + timedelta(seconds=settings.admin_session_max_age_s)))
+    return token
 
 
-def session_key(request: Request) -> str:
-    """The signed-in session's own admin key; NotSignedIn without a valid, live session."""
+def current_session(request: Request) -> DashboardSession:
+    """The signed-in session of this request; NotSignedIn without a valid, unexpired one."""
     settings: Settings = request.app.state.settings
-    raw = request.cookies.get(COOKIE)
-    if not raw:
+    token = request.cookies.get(COOKIE)
+    if not token:
         raise NotSignedIn
-    try:
-        key = _serializer(settings).loads(raw, max_age=settings.admin_session_max_age_s)
-    except BadSignature:
-        raise NotSignedIn from None
+    digest = key_sha256(token)
     with session_scope(settings.effective_database_url) as session:
-        principal = lookup_key(session, key, None)
-    if principal is None or principal.role != "admin":  # signed out, expired or revoked
+        row = session.execute(
+            select(AdminSession.key_id, AdminSession.name, ApiKey.role)
+            .outerjoin(ApiKey, ApiKey.id == AdminSession.key_id)
+            .where(AdminSession.token_sha256 == digest, AdminSession.expires_at > utc_now())
+        ).first()
+    if row is None:  # unknown, signed out or expired
         raise NotSignedIn
-    return key
+    if row.key_id is None and not settings.admin_key:  # the environment's key was unset since
+        raise NotSignedIn
+    if row.key_id is not None and row.role != "admin":  # the key is gone (or not admin)
+        raise NotSignedIn
+    return DashboardSession(digest, Principal(key_id=row.key_id, role="admin", name=row.name))
 
 
-def sign_out(settings: Settings, key: str) -> None:
+def sign_out(settings: Settings, token_sha256: str) -> None:
     with session_scope(settings.effective_database_url) as session:
-        session.execute(delete(ApiKey).where(ApiKey.key_sha256 == key_sha256(key)))
+        session.execute(delete(AdminSession).where(AdminSession.token_sha256 == token_sha256))
 
 
-def _forget_expired(session, max_age_s: int) -> None:
-    session.execute(delete(ApiKey).where(
-        ApiKey.name.startswith(SESSION_KEY_PREFIX),
-        ApiKey.created_at < utc_now() - timedelta(seconds=max_age_s)))
+def forget_expired(session: Session) -> int:
+    """Delete expired sessions; returns how many (indexed on expires_at, so cheap when none)."""
+    return session.execute(delete(AdminSession).where(AdminSession.expires_at <= utc_now())).rowcount
+
+
+def as_principal(app, principal: Principal):
+    """``app`` as an ASGI app whose requests are made by ``principal`` (for in-process calls)."""
+
+    async def call(scope, receive, send):
+        await app({**scope, DASHBOARD_PRINCIPAL: principal}, receive, send)
+
+    return call
 
 
 def cookie_args(request: Request, settings: Settings) -> dict:
