@@ -24,7 +24,8 @@ def made_result(signs: list[tuple[str, str, float, float, float | None]], source
                                 reprojection_error_px=0.4, rotation_deg=35.0),
         signs=[Sign(track, cls, np.array([float(i), 2.0, 1.5]), lat, lon, alt, 0.2, 0.7,
                     [SignObservation("000000", (1.0 + i, -0.5, 12.0)),
-                     SignObservation("000001", (0.8 + i, -0.5, 11.0))])
+                     SignObservation("000001", (0.8 + i, -0.5, 11.0))],
+                    facing_deg=(90.0 * i) % 360.0, r95_h_m=0.5 + 0.1 * i)
                for i, (track, cls, lat, lon, alt) in enumerate(signs)],
         rejected=[], timings_s={"turns": 0.01, "calibrate": 1.5})
 

@@ -42,6 +42,9 @@ def test_done_journey_and_its_signs_follow_the_contract(stack):
         {"frame": "000000", "x": 1.0, "y": -0.5, "z": 12.0, "box": [10.0, 10.0, 18.0, 18.0]},
         {"frame": "000001", "x": 0.8, "y": -0.5, "z": 11.0, "box": [13.0, 10.0, 21.0, 18.0]}]
     assert signs["features"][1]["properties"]["class"] == "yield"
+    # Which way each sign faces and its 95 % horizontal radius (issue 12).
+    assert [(f["properties"]["facing_deg"], f["properties"]["r95_h_m"])
+            for f in signs["features"]] == [(0.0, 0.5), (90.0, 0.6)]
 
 
 def test_altitude_is_omitted_when_the_journey_had_none(stack):

@@ -44,3 +44,13 @@ def test_bearings_and_their_difference():
     assert bearing_deg(np.array([-1.0, 0.0, 0.0])) == pytest.approx(270.0)
     assert angle_between_deg(350.0, 10.0) == pytest.approx(20.0)
     assert angle_between_deg(10.0, 190.0) == pytest.approx(180.0)
+
+
+def test_fused_facing_is_the_weighted_circular_mean():
+    from app.pipeline.facing import mean_facing_deg
+
+    assert mean_facing_deg([350.0, 10.0], [1.0, 1.0]) == pytest.approx(0.0, abs=1e-9) or \
+        mean_facing_deg([350.0, 10.0], [1.0, 1.0]) == pytest.approx(360.0)
+    assert mean_facing_deg([80.0, None, 100.0], [3.0, 5.0, 1.0]) == pytest.approx(85.0, abs=0.2)
+    assert mean_facing_deg([None], [1.0]) is None
+    assert mean_facing_deg([0.0, 180.0], [1.0, 1.0]) is None

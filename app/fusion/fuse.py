@@ -44,6 +44,7 @@ from app.fusion.bias import estimate_journey_biases
 from app.fusion.config import FusionConfig
 from app.fusion.local import LocalSigns, to_local_signs
 from app.fusion.types import FusionResult, JourneyBias, JourneySign, MapSign
+from app.pipeline.facing import mean_facing_deg
 
 
 def _corrected(local: LocalSigns, biases: dict[str, JourneyBias],
@@ -90,7 +91,8 @@ def _map_signs(clusters: list[Cluster], local: LocalSigns, biased: set[str],
             alt_m=float(alt[n]) if c.has_alt else None, cov_enu=c.cov_enu, members=sorted(ids),
             journeys=sorted({s.journey_key for s in members}), n_observations=len(members),
             first_seen_at=float(min(times)), last_seen_at=float(max(times)), state="confirmed",
-            evidence=evidence))
+            evidence=evidence,
+            facing_deg=mean_facing_deg([s.facing_deg for s in members], c.weights)))
     return sorted(out, key=lambda m: m.map_id)
 
 

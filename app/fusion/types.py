@@ -29,6 +29,7 @@ class JourneySign:
     alt_m: float | None
     cov_enu: np.ndarray  # (3, 3) m^2, east/north/up
     captured_at: float  # unix seconds when the journey was recorded
+    facing_deg: float | None = None  # compass bearing of its face (app.pipeline.facing)
 
 
 @dataclass(eq=False)
@@ -48,6 +49,7 @@ class MapSign:
     last_seen_at: float
     state: MapSignState = "confirmed"
     evidence: dict = field(default_factory=dict)  # JSON-serialisable
+    facing_deg: float | None = None  # the members' weighted circular mean
 
 
 @dataclass(frozen=True)

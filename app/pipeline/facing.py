@@ -32,6 +32,19 @@ def facing_deg(xyz_sign_enu: np.ndarray, centres_cam_enu: np.ndarray) -> float |
     return float(np.degrees(np.arctan2(mean_en[0], mean_en[1])) % 360.0)
 
 
+def mean_facing_deg(facings_deg, weights) -> float | None:
+    """Weighted circular mean of bearings (None entries skipped); None when there are none or
+    they cancel out (a sign fused from both of its sides)."""
+    pairs = [(np.radians(f), float(w)) for f, w in zip(facings_deg, weights) if f is not None]
+    if not pairs or sum(w for _, w in pairs) <= 0.0:
+        return None
+    e = sum(w * np.sin(a) for a, w in pairs)
+    n = sum(w * np.cos(a) for a, w in pairs)
+    if np.hypot(e, n) < 1e-6 * sum(w for _, w in pairs):
+        return None
+    return float(np.degrees(np.arctan2(e, n)) % 360.0)
+
+
 def bearing_deg(vector_enu: np.ndarray) -> float:
     """Compass bearing of an ENU vector's horizontal part (degrees clockwise from north)."""
     return float(np.degrees(np.arctan2(vector_enu[0], vector_enu[1])) % 360.0)

@@ -130,6 +130,7 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
             lat_deg=float(s.lat_deg), lon_deg=float(s.lon_deg), alt_m=_finite_or_none(s.alt_m),
             x_enu_m=float(s.xyz_enu[0]), y_enu_m=float(s.xyz_enu[1]), z_enu_m=float(s.xyz_enu[2]),
             std_m=float(s.std_m), reprojection_rms_px=float(s.reprojection_rms_px),
+            r95_h_m=_finite_or_none(s.r95_h_m), facing_deg=_finite_or_none(s.facing_deg),
             observations=[{"frame": o.frame_id, "x": float(o.p_cam[0]), "y": float(o.p_cam[1]),
                            "z": float(o.p_cam[2]), "box": boxes.get((o.frame_id, s.track_id))}
                           for o in s.observations],

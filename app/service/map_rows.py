@@ -19,7 +19,8 @@ def journey_sign(row: JourneySignRow, journey_key: str, captured_at_s: float) ->
     # The pipeline reports one isotropic 1-sigma; fusion adds the journey's GPS term itself.
     return JourneySign(sign_id=row.id, journey_key=journey_key, cls=row.cls, lat_deg=row.lat_deg,
                        lon_deg=row.lon_deg, alt_m=row.alt_m,
-                       cov_enu=np.eye(3) * float(row.std_m) ** 2, captured_at=captured_at_s)
+                       cov_enu=np.eye(3) * float(row.std_m) ** 2, captured_at=captured_at_s,
+                       facing_deg=row.facing_deg)
 
 
 def coverage_row(journey: Journey, journey_key: str, captured_at_s: float,
@@ -65,7 +66,7 @@ def map_sign_values(sign: MapSign) -> dict[str, Any]:
     cov = np.asarray(sign.cov_enu, dtype=float)
     return {"cls": sign.cls, "lat_deg": float(sign.lat_deg), "lon_deg": float(sign.lon_deg),
             "alt_m": None if sign.alt_m is None else float(sign.alt_m),
-            "cov_enu": cov.tolist(), "std_m": horizontal_std_m(cov),
+            "cov_enu": cov.tolist(), "std_m": horizontal_std_m(cov), "facing_deg": sign.facing_deg,
             "n_journeys": len(sign.journeys), "n_observations": int(sign.n_observations),
             "first_seen_at": _utc(sign.first_seen_at), "last_seen_at": _utc(sign.last_seen_at),
             "state": sign.state, "evidence": sign.evidence}

@@ -114,6 +114,8 @@ class JourneySign(Base):
     y_enu_m: Mapped[float] = mapped_column(Float)
     z_enu_m: Mapped[float] = mapped_column(Float)
     std_m: Mapped[float] = mapped_column(Float)
+    r95_h_m: Mapped[float | None] = mapped_column(Float)  # horizontal radius, 95 % probability
+    facing_deg: Mapped[float | None] = mapped_column(Float)  # compass bearing of the sign's face
     reprojection_rms_px: Mapped[float] = mapped_column(Float)
     observations: Mapped[list[Any]] = mapped_column(JSON)
 
@@ -154,6 +156,7 @@ class MapSign(Base):
     alt_m: Mapped[float | None] = mapped_column(Float)
     cov_enu: Mapped[list[Any]] = mapped_column(JSON)
     std_m: Mapped[float] = mapped_column(Float)
+    facing_deg: Mapped[float | None] = mapped_column(Float)  # compass bearing of the sign's face
     n_journeys: Mapped[int] = mapped_column(Integer)
     n_observations: Mapped[int] = mapped_column(Integer)
     first_seen_at: Mapped[datetime]

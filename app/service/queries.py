@@ -81,4 +81,5 @@ def _feature(row: JourneySign, with_observations: bool) -> dict[str, Any]:
     extra: dict[str, Any] = {"observations": row.observations} if with_observations else {}
     return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m,
                         track_id=row.track_id, journey_id=row.journey_id, std_m=row.std_m,
+                        r95_h_m=row.r95_h_m, facing_deg=row.facing_deg,
                         reprojection_rms_px=row.reprojection_rms_px, **extra)
