@@ -194,7 +194,8 @@ def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_d
                 repeats.setdefault(_sha(req.payload), set()).add(s.journey_id)
         drained, drain_s = drain(service, set(accepted), opts.drain_timeout_s)
         jobs = account(service, accepted, repeats)
-    return {"backend": backend, "load_s": round(load_s, 2), "drain_s": round(drain_s, 1),
+    return {"backend": backend, "load_s": round(load_s, 2),
+            "load_rps": round(len(samples) / load_s, 1), "drain_s": round(drain_s, 1),
             "stats": stats(samples + drained), "jobs": jobs,
             "errors": [asdict(s) for s in samples + drained if s.error][:20]}
 
@@ -236,8 +237,10 @@ def markdown(report: dict) -> str:
         lost = len(j["missing"]) + len(j["unfinished"])
         parts += [f"## {NAMES[run['backend']]}", "",
                   md_table(["request", "n", "errors", "p50", "p95", "p99", "max"], rows), "",
-                  f"Load {run['load_s']} s, drain {run['drain_s']} s. Accepted uploads: "
-                  f"{j['accepted']}: done {j['done']} ({j['n_signs_done']} signs), failed "
+                  f"Load {run['load_s']} s ({run['load_rps']} requests/s), then drain "
+                  f"{run['drain_s']} s. Accepted uploads: {j['accepted']} (queued again by a "
+                  f"re-upload after failing: {j['requeued_by_reupload']}): done {j['done']} "
+                  f"({j['n_signs_done']} signs), failed "
                   f"{j['failed']}, lost {lost}; ran more than once: {len(j['attempts_not_1'])}; "
                   f"not ended exactly once in the job logs: {len(j['ended_not_once'])}; duplicate "
                   f"rows: {j['duplicate_rows']}; re-uploads naming another journey: "

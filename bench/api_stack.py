@@ -244,8 +244,9 @@ def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -
                                      and sign_rows.get(i, 0) != (r.n_signs or 0)),
         "duplicate_rows": len(twins),
         "repeats_split": sorted(sha for sha, ids in repeats.items() if len(ids) != 1),
-        "failure_reasons": dict(Counter((r.error or "")[:120] for r in rows.values()
-                                        if r.status == "failed")),
+        # The reasons' first clause: the rest is advice, the same for every journey.
+        "failure_reasons": dict(Counter((r.error or "").split(";")[0][:160]
+                                        for r in rows.values() if r.status == "failed")),
         "n_signs_done": sum(r.n_signs or 0 for r in rows.values() if r.status == "done"),
     }
 

@@ -15,6 +15,7 @@ the examples are derandomized, so a run is reproducible; elsewhere each run expl
 
 from __future__ import annotations
 
+import atexit
 import os
 import secrets
 import shutil
@@ -34,19 +35,20 @@ from schemathesis.specs.openapi.checks import (content_type_conformance,
 
 from app.pipeline.bundle import read_bundle
 from app.service.app import create_app
-from app.service.db import session_scope, upgrade
+from app.service.db import session_scope
 from app.service.models import Journey, MapSign
 from tests import map_support as ms
-from tests.conftest import ADMIN_KEY, Stack, auth, make_settings, upload
+from tests.conftest import ADMIN_KEY, auth, sqlite_stack, upload
 from tests.service_support import bf_zip, finish, made_result
 
 EXAMPLES = int(os.environ.get("SIGNMAP_FUZZ_EXAMPLES", "25"))
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,
           response_schema_conformance]
-# The schema is read from the app when the module is collected; the data dir behind it is made
-# (migrated and seeded) only when a test runs, by the ``seeded`` fixture.
-ROOT = Path(tempfile.gettempdir()) / f"signmap-fuzz-{secrets.token_hex(4)}"
-STACK = Stack("sqlite", make_settings(ROOT / "data"))
+# The schema is read from the app when the module is collected, so the app and its (migrated)
+# database are made then; the ``seeded`` fixture fills the database when a test runs.
+ROOT = Path(tempfile.mkdtemp(prefix="signmap-fuzz-"))
+atexit.register(shutil.rmtree, ROOT, ignore_errors=True)
+STACK = sqlite_stack(ROOT / "data")
 APP = create_app(STACK.settings)
 schema = schemathesis.openapi.from_asgi("/openapi.json", APP)
 KEYS: dict[str, str | None] = {}  # role -> key (None: no Authorization header)
@@ -56,7 +58,6 @@ STATUSES: Counter = Counter()  # (operation, status) of every call, for the cove
 
 @pytest.fixture(scope="module", autouse=True)
 def seeded():
-    upgrade(STACK.url)
     KEYS.update(admin=ADMIN_KEY, fleet=STACK.key("fleet"), reader=STACK.key("reader"), none=None)
     with TestClient(APP) as client:
         journey_id = upload(client, KEYS["fleet"], bf_zip())
