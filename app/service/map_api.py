@@ -6,7 +6,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session
@@ -17,7 +17,7 @@ from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
 from app.service.queries import BBox
-from app.service.schemas import ErrorOut, PointGeometry
+from app.service.schemas import NO_NUL, ErrorOut, PointGeometry
 
 router = APIRouter(prefix="/api/v1")
 _AUTH = {401: {"model": ErrorOut, "description": "no or unknown API key"},
@@ -118,10 +118,12 @@ def map_signs_query(dialect: str, bbox: BBox, cls: str | None, since: datetime |
             responses={400: {"model": ErrorOut, "description": "bad bbox or since"}, **_AUTH})
 def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
                   bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
-                  cls: Annotated[str | None, Query(alias="class", examples=["stop"])] = None,
+                  cls: Annotated[str | None, Query(alias="class", examples=["stop"],
+                                                   pattern=NO_NUL)] = None,
                   since: datetime | None = None, state: State | None = None,
                   limit: Annotated[int, Query(ge=1, le=10000)] = 1000,
-                  cursor: str | None = None) -> dict[str, Any]:
+                  cursor: Annotated[str | None, Query(pattern=NO_NUL)] = None
+                  ) -> dict[str, Any]:
     try:
         box = BBox.parse(bbox)
     except ValueError as exc:
@@ -172,7 +174,7 @@ def _members(session: Session, map_sign_id: str) -> list[dict[str, Any]]:
                         "and camera-frame positions they were seen at and the detection boxes; "
                         "`properties.evidence`: fusion weights, outliers and the change rule.",
             responses={404: {"model": ErrorOut, "description": "no such map sign"}, **_AUTH})
-def get_map_sign(request: Request, sign_id: str,
+def get_map_sign(request: Request, sign_id: Annotated[str, Path(pattern=NO_NUL)],
                  who: Annotated[Principal, Depends(require("reader"))]) -> dict[str, Any]:
     with session_scope(_url(request)) as session:
         row = session.get(MapSign, sign_id)
@@ -190,7 +192,7 @@ def get_map_sign(request: Request, sign_id: str,
                responses={404: {"model": ErrorOut, "description": "no such journey"},
                           409: {"model": ErrorOut, "description": "the journey is running"},
                           **_AUTH})
-def delete_journey(request: Request, journey_id: str,
+def delete_journey(request: Request, journey_id: Annotated[str, Path(pattern=NO_NUL)],
                    who: Annotated[Principal, Depends(require("admin"))]) -> None:
     with session_scope(_url(request)) as session:
         row = session.get(Journey, journey_id)
