@@ -5,7 +5,7 @@ a real `signmap serve` is started on a fresh database holding a seeded map, and 
 clients send a fixed number of requests: uploads (a few rendered journeys with a turn that really
 get processed, many small straight ones that are accepted and then fail fast in the job with "no
 turn", and re-uploads of the same bytes), map reads (a street and a city box), journey status polls
-and health checks. Then, while the jobs drain, one client keeps reading the map. Reported per kind
+and health checks. Then, until every job has ended, the clients keep reading the map. Reported per kind
 of request: count, errors (5xx, unexpected status, connection errors), p50/p95/p99/max latency;
 and what became of every accepted upload, from the database and the job logs: each must end done
 or failed exactly once (one row, one attempt, one ending), re-uploads must name the same journey.
@@ -13,8 +13,8 @@ or failed exactly once (one row, one attempt, one ending), re-uploads must name 
 
 from __future__ import annotations
 
-import argparse
 import asyncio
+import hashlib
 import json
 import random
 import tempfile
@@ -27,13 +27,13 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from bench.api_stack import CITY, STREET, Service, account, bundles, journey_states, \
-    running_service, variant
+from bench.api_stack import (CITY, STREET, Service, account, bundles, journey_states,
+                              running_service, variant)
 from bench.tables import md_table
 
 BENCH_DIR = Path(__file__).resolve().parent
 KINDS = ("upload (new)", "upload (processed)", "upload (same bytes)", "map read (street)",
-         "map read (city, 500)", "journey status", "health", "map read (street) during drain")
+         "map read (city, 500)", "journey status", "health", "map read (street) while jobs run")
 
 
 @dataclass
@@ -159,25 +159,37 @@ async def load(service: Service, requests: list[Request], clients: int, rng: ran
     return [s for s, _ in samples], [r for _, r in samples], time.perf_counter() - t0
 
 
-def drain(service: Service, accepted: set[str], timeout_s: float) -> tuple[list[Sample], float]:
-    """Wait until every accepted upload has ended (or ``timeout_s``), reading the map meanwhile."""
+async def drain(service: Service, accepted: set[str], timeout_s: float, clients: int
+                ) -> tuple[list[Sample], float]:
+    """Wait until every accepted upload has ended (or ``timeout_s``), ``clients`` readers reading
+    the street box meanwhile, each twice a second."""
     t0 = time.monotonic()
-    samples = []
-    with httpx.Client(base_url=service.base_url, timeout=60) as client:
+    ended = asyncio.Event()
+    samples: list[Sample] = []
+    headers = {"Authorization": f"Bearer {service.reader_key}"}
+
+    async def watch() -> None:
         while time.monotonic() - t0 < timeout_s:
-            states = journey_states(service.settings.effective_database_url, accepted)
+            states = await asyncio.to_thread(journey_states,
+                                             service.settings.effective_database_url, accepted)
             if all(states.get(i) in ("done", "failed") for i in accepted):
                 break
-            for _ in range(4):
+            await asyncio.sleep(1.0)
+        ended.set()
+
+    async def read() -> None:
+        async with httpx.AsyncClient(base_url=service.base_url, timeout=60) as client:
+            while not ended.is_set():
                 s0 = time.perf_counter()
                 try:
-                    r = client.get(f"/api/v1/signs?bbox={_box(STREET)}",
-                                   headers={"Authorization": f"Bearer {service.reader_key}"})
+                    r = await client.get(f"/api/v1/signs?bbox={_box(STREET)}", headers=headers)
                     status, error = r.status_code, None if r.status_code == 200 else r.text[:200]
                 except httpx.HTTPError as exc:
                     status, error = None, f"{type(exc).__name__}: {exc}"
                 samples.append(Sample(KINDS[-1], time.perf_counter() - s0, status, error))
-                time.sleep(0.25)
+                await asyncio.sleep(0.5)
+
+    await asyncio.gather(watch(), *(read() for _ in range(clients)))
     return samples, time.monotonic() - t0
 
 
@@ -192,7 +204,8 @@ def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_d
         for s, req in zip(samples, sent):
             if req.payload is not None and s.journey_id:
                 repeats.setdefault(_sha(req.payload), set()).add(s.journey_id)
-        drained, drain_s = drain(service, set(accepted), opts.drain_timeout_s)
+        drained, drain_s = asyncio.run(drain(service, set(accepted), opts.drain_timeout_s,
+                                             opts.clients))
         jobs = account(service, accepted, repeats)
     return {"backend": backend, "load_s": round(load_s, 2),
             "load_rps": round(len(samples) / load_s, 1), "drain_s": round(drain_s, 1),
@@ -201,8 +214,6 @@ def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_d
 
 
 def _sha(data: bytes) -> str:
-    import hashlib
-
     return hashlib.sha256(data).hexdigest()
 
 
@@ -237,7 +248,7 @@ def markdown(report: dict) -> str:
         lost = len(j["missing"]) + len(j["unfinished"])
         parts += [f"## {NAMES[run['backend']]}", "",
                   md_table(["request", "n", "errors", "p50", "p95", "p99", "max"], rows), "",
-                  f"Load {run['load_s']} s ({run['load_rps']} requests/s), then drain "
+                  f"Load {run['load_s']} s ({run['load_rps']} requests/s), then jobs ran on for "
                   f"{run['drain_s']} s. Accepted uploads: {j['accepted']} (queued again by a "
                   f"re-upload after failing: {j['requeued_by_reupload']}): done {j['done']} "
                   f"({j['n_signs_done']} signs), failed "

@@ -38,7 +38,7 @@ def test_bench_api_smoke(request, tmp_path, synth_cache, backend):
     assert jobs["accepted"] == 2 and jobs["failed"] == 2 and jobs["done"] == 0
     assert all("has no turn" in reason for reason in jobs["failure_reasons"])
     assert run["stats"]["upload (new)"]["n"] + run["stats"]["upload (same bytes)"]["n"] == 3
-    assert sum(s["n"] for k, s in run["stats"].items() if "during drain" not in k) == 15
+    assert sum(s["n"] for k, s in run["stats"].items() if "while jobs run" not in k) == 15
     assert "| map read (street) |" in md.read_text() and js.exists()
 
 
