@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import os
 import random
 import tempfile
 import time
@@ -195,6 +196,7 @@ async def drain(service: Service, accepted: set[str], timeout_s: float, clients:
 
 def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_dir: Path) -> dict:
     rng = random.Random(opts.seed)
+    load_before = os.getloadavg()[0]
     with running_service(backend, run_dir, opts.postgres_url, opts.redis_url,
                          opts.map_signs) as service:
         requests = plan(opts, turn, straight, rng)
@@ -209,6 +211,8 @@ def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_d
         jobs = account(service, accepted, repeats)
     return {"backend": backend, "load_s": round(load_s, 2),
             "load_rps": round(len(samples) / load_s, 1), "drain_s": round(drain_s, 1),
+            # The machine's 1-minute load average before and after: other work skews latency.
+            "loadavg": [round(load_before, 1), round(os.getloadavg()[0], 1)],
             "stats": stats(samples + drained), "jobs": jobs,
             "errors": [asdict(s) for s in samples + drained if s.error][:20]}
 
@@ -249,7 +253,8 @@ def markdown(report: dict) -> str:
         parts += [f"## {NAMES[run['backend']]}", "",
                   md_table(["request", "n", "errors", "p50", "p95", "p99", "max"], rows), "",
                   f"Load {run['load_s']} s ({run['load_rps']} requests/s), then jobs ran on for "
-                  f"{run['drain_s']} s. Accepted uploads: {j['accepted']} (queued again by a "
+                  f"{run['drain_s']} s; the machine's load average {run['loadavg'][0]} before, "
+                  f"{run['loadavg'][1]} after. Accepted uploads: {j['accepted']} (queued again by a "
                   f"re-upload after failing: {j['requeued_by_reupload']}): done {j['done']} "
                   f"({j['n_signs_done']} signs), failed "
                   f"{j['failed']}, lost {lost}; ran more than once: {len(j['attempts_not_1'])}; "
