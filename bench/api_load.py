@@ -244,7 +244,8 @@ def markdown(report: dict) -> str:
              f"{o['requests']} reads/polls/health checks, {o['uploads']} fail-fast uploads (+ one "
              f"in 4 re-uploaded), {o['processed']} rendered journeys really processed, a map of "
              f"{o['map_signs']} signs. Latency in ms, whole request (uploads include the "
-             f"validation in the API). Machine: 2 cores, shared.", ""]
+             f"validation in the API). Machine: 2 cores, shared with other work (load average "
+             f"below).", ""]
     for run in report["runs"]:
         rows = [[kind, s["n"], s["errors"], s["p50_ms"], s["p95_ms"], s["p99_ms"], s["max_ms"]]
                 for kind, s in run["stats"].items()]
@@ -257,7 +258,8 @@ def markdown(report: dict) -> str:
                   f"{run['loadavg'][1]} after. Accepted uploads: {j['accepted']} (queued again by a "
                   f"re-upload after failing: {j['requeued_by_reupload']}): done {j['done']} "
                   f"({j['n_signs_done']} signs), failed "
-                  f"{j['failed']}, lost {lost}; ran more than once: {len(j['attempts_not_1'])}; "
+                  f"{j['failed']}, lost {lost}; retried after a lost run (attempts > 1): "
+                  f"{len(j['attempts_not_1'])}; "
                   f"not ended exactly once in the job logs: {len(j['ended_not_once'])}; duplicate "
                   f"rows: {j['duplicate_rows']}; re-uploads naming another journey: "
                   f"{len(j['repeats_split'])}. Failure reasons: "
