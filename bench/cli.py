@@ -116,6 +116,9 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    from bench.api_load import add_parser as add_api_parser
+
+    add_api_parser(bench_sub)
 
 
 def main(argv: list[str] | None = None) -> int:

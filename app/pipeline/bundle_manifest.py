@@ -34,10 +34,18 @@ class Manifest(BaseModel):
     model_config = ConfigDict(extra="ignore", strict=True)
 
     format: str
-    camera_id: str
-    vehicle_id: str | None = None
-    captured_at: str | None = None
+    # The lengths of the service's columns; PostgreSQL refuses longer text and any NUL.
+    camera_id: str = Field(max_length=200)
+    vehicle_id: str | None = Field(None, max_length=200)
+    captured_at: str | None = Field(None, max_length=64)
     camera_prior: CameraPrior | None = None
+
+    @field_validator("camera_id", "vehicle_id", "captured_at")
+    @classmethod
+    def _no_nul(cls, value: str | None) -> str | None:
+        if value is not None and "\x00" in value:
+            raise ValueError("must not contain NUL characters")
+        return value
 
     @field_validator("camera_id")
     @classmethod

@@ -7,7 +7,7 @@ import time
 import uuid
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from sqlalchemy import delete, select
@@ -20,7 +20,7 @@ from app.service import queries, storage
 from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey
-from app.service.schemas import ErrorOut, JourneyAccepted, JourneyOut, SignCollection
+from app.service.schemas import NO_NUL, ErrorOut, JourneyAccepted, JourneyOut, SignCollection
 from app.service.upload import FIELD, receive_bundle
 
 log = logging.getLogger(__name__)
@@ -31,6 +31,7 @@ _AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
     403: {"model": ErrorOut, "description": "the key's role may not make this call"},
 }
 _NOT_YOURS = {404: {"model": ErrorOut, "description": "no such journey among the caller's"}}
+JourneyId = Annotated[str, Path(pattern=NO_NUL)]
 
 
 def _url(request: Request) -> str:
@@ -160,7 +161,7 @@ def list_journeys(request: Request, who: Annotated[Principal, Depends(require("f
 
 @router.get("/journeys/{journey_id}", response_model=JourneyOut, summary="A journey's status",
             responses={**_AUTH_ERRORS, **_NOT_YOURS})
-def get_journey(request: Request, journey_id: str,
+def get_journey(request: Request, journey_id: JourneyId,
                 who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
     return _journey_out(_own_journey(request, journey_id, who))
 
@@ -170,7 +171,7 @@ def get_journey(request: Request, journey_id: str,
             description="Empty until the journey is done. Each feature carries the sign's "
                         "position in every observing frame's camera.",
             responses={**_AUTH_ERRORS, **_NOT_YOURS})
-def get_journey_signs(request: Request, journey_id: str,
+def get_journey_signs(request: Request, journey_id: JourneyId,
                       who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
     _own_journey(request, journey_id, who)
     with session_scope(_url(request)) as session:

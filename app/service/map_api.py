@@ -6,7 +6,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session
@@ -17,7 +17,7 @@ from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
 from app.service.queries import BBox
-from app.service.schemas import ErrorOut, PointGeometry
+from app.service.schemas import NO_NUL, ErrorOut, PointGeometry
 
 router = APIRouter(prefix="/api/v1")
 _AUTH = {401: {"model": ErrorOut, "description": "no or unknown API key"},
@@ -67,6 +67,16 @@ def _aware(when: datetime) -> datetime:
     return when if when.tzinfo else when.replace(tzinfo=timezone.utc)
 
 
+def _since_utc(since: datetime) -> datetime:
+    """``since`` in UTC; 400 for a time the conversion takes out of Python's years 1..9999 (a 500
+    from the database driver before, found by schemathesis)."""
+    try:
+        return _aware(since).astimezone(timezone.utc)
+    except OverflowError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"since {since.isoformat()} is out of range") from exc
+
+
 def _in_bbox(dialect: str, bbox: BBox):
     if dialect == "postgresql":
         # Matches the GiST index on point(lon_deg, lat_deg) (migration 0002).
@@ -105,17 +115,20 @@ def map_signs_query(dialect: str, bbox: BBox, cls: str | None, since: datetime |
             description="`bbox=minlon,minlat,maxlon,maxlat` in WGS84 degrees (minlon > maxlon "
                         "crosses the antimeridian); optional `class`, `state`, `since` (updated at "
                         "or after, ISO 8601). Ordered by id; follow `next` with `cursor`.",
-            responses={400: {"model": ErrorOut, "description": "bad bbox"}, **_AUTH})
+            responses={400: {"model": ErrorOut, "description": "bad bbox or since"}, **_AUTH})
 def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
                   bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
-                  cls: Annotated[str | None, Query(alias="class", examples=["stop"])] = None,
+                  cls: Annotated[str | None, Query(alias="class", examples=["stop"],
+                                                   pattern=NO_NUL)] = None,
                   since: datetime | None = None, state: State | None = None,
                   limit: Annotated[int, Query(ge=1, le=10000)] = 1000,
-                  cursor: str | None = None) -> dict[str, Any]:
+                  cursor: Annotated[str | None, Query(pattern=NO_NUL)] = None
+                  ) -> dict[str, Any]:
     try:
         box = BBox.parse(bbox)
     except ValueError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    since = None if since is None else _since_utc(since)
     with session_scope(_url(request)) as session:
         query = map_signs_query(session.get_bind().dialect.name, box, cls, since, state, cursor,
                                 limit + 1)
@@ -129,10 +142,10 @@ def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("r
             summary="Map signs created, updated or removed since a time",
             description="For clients that keep a copy of the map: call with the previous "
                         "answer's `until`. Removed signs come as tombstones.",
-            responses=_AUTH)
+            responses={400: {"model": ErrorOut, "description": "since out of range"}, **_AUTH})
 def get_map_changes(request: Request, who: Annotated[Principal, Depends(require("reader"))],
                     since: datetime) -> dict[str, Any]:
-    since = _aware(since)
+    since = _since_utc(since)
     with session_scope(_url(request)) as session:
         until = session.scalar(select(func.max(MapSign.updated_at))) or since
         rows = list(session.scalars(select(MapSign).where(MapSign.updated_at >= since)
@@ -161,7 +174,7 @@ def _members(session: Session, map_sign_id: str) -> list[dict[str, Any]]:
                         "and camera-frame positions they were seen at and the detection boxes; "
                         "`properties.evidence`: fusion weights, outliers and the change rule.",
             responses={404: {"model": ErrorOut, "description": "no such map sign"}, **_AUTH})
-def get_map_sign(request: Request, sign_id: str,
+def get_map_sign(request: Request, sign_id: Annotated[str, Path(pattern=NO_NUL)],
                  who: Annotated[Principal, Depends(require("reader"))]) -> dict[str, Any]:
     with session_scope(_url(request)) as session:
         row = session.get(MapSign, sign_id)
@@ -180,7 +193,7 @@ def get_map_sign(request: Request, sign_id: str,
                responses={404: {"model": ErrorOut, "description": "no such journey"},
                           409: {"model": ErrorOut, "description": "the journey is running"},
                           **_AUTH})
-def delete_journey(request: Request, journey_id: str,
+def delete_journey(request: Request, journey_id: Annotated[str, Path(pattern=NO_NUL)],
                    who: Annotated[Principal, Depends(require("admin"))]) -> None:
     with session_scope(_url(request)) as session:
         row = session.get(Journey, journey_id)
