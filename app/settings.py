@@ -6,7 +6,7 @@ from functools import cached_property
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from pydantic import Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
@@ -75,3 +75,15 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'signmap.db').resolve()}"
+
+    def as_env(self) -> dict[str, str]:
+        """``SIGNMAP_*`` variables that make a child process's ``Settings()`` equal this one
+        (nested groups as JSON, unset values left out)."""
+        env = {}
+        for name in type(self).model_fields:
+            value = getattr(self, name)
+            if isinstance(value, BaseModel):
+                env[f"SIGNMAP_{name.upper()}"] = value.model_dump_json()
+            elif value is not None:
+                env[f"SIGNMAP_{name.upper()}"] = str(value)
+        return env

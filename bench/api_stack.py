@@ -65,11 +65,7 @@ def _free_port() -> int:
 def _env(settings: Settings) -> dict[str, str]:
     """The environment that makes a child process's Settings() equal ``settings``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("SIGNMAP_")}
-    for name, value in settings.model_dump(exclude={"pipeline", "fusion"}).items():
-        if value is not None:
-            env[f"SIGNMAP_{name.upper()}"] = str(value)
-    env["SIGNMAP_PIPELINE"] = settings.pipeline.model_dump_json()
-    env["SIGNMAP_FUSION"] = settings.fusion.model_dump_json()
+    env.update(settings.as_env())
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     return env
 

@@ -217,13 +217,7 @@ def auth(key: str) -> dict[str, str]:
 def settings_env(settings: Settings) -> dict[str, str]:
     """The environment that makes a child process's Settings() equal ``settings``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("SIGNMAP_")}
-    nested = ("pipeline", "fusion", "bundle")
-    for name, value in settings.model_dump(exclude=set(nested)).items():
-        if value is not None:
-            env[f"SIGNMAP_{name.upper()}"] = str(value)
-    for name in nested:
-        env[f"SIGNMAP_{name.upper()}"] = getattr(settings, name).model_dump_json()
-    return env
+    return {**env, **settings.as_env()}
 
 
 class CeleryWorker:
