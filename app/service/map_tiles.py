@@ -1,0 +1,117 @@
+"""Vector tiles of the map (Mapbox Vector Tile 2.1, Web Mercator z/x/y as OSM's): one layer
+``signs`` of points. Up to ``tile_points_min_zoom`` (and in a tile holding more than
+``tile_max_points`` signs) the signs are clustered on a grid in SQL: one point per non-empty cell at
+its members' mean position, with ``count``, the smallest member ``id`` as its representative, and
+``class``/``state`` when all members share one. A single sign always carries its own ``id``,
+``class`` and ``state`` with ``count`` 1. The pipeline does not estimate which way a sign faces, so
+there is no ``facing``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import mapbox_vector_tile
+from shapely.geometry import Point
+from sqlalchemy import Integer, cast, func, select
+from sqlalchemy.orm import Session
+
+from app.service.map_read import live_in_bbox
+from app.service.models import MapSign
+from app.service.queries import BBox
+
+EXTENT = 4096
+LAYER = "signs"
+MEDIA_TYPE = "application/vnd.mapbox-vector-tile"
+MAX_LAT = math.degrees(math.atan(math.sinh(math.pi)))  # 85.0511..., the square world's edge
+
+
+@dataclass(frozen=True)
+class Tile:
+    z: int
+    x: int
+    y: int
+
+    @classmethod
+    def checked(cls, z: int, x: int, y: int, max_zoom: int) -> "Tile":
+        """ValueError saying what is out of range."""
+        if not 0 <= z <= max_zoom:
+            raise ValueError(f"zoom must be within [0, {max_zoom}], got {z}")
+        n = 2 ** z
+        if not (0 <= x < n and 0 <= y < n):
+            raise ValueError(f"at zoom {z} x and y must be within [0, {n - 1}], got x={x} y={y}")
+        return cls(z, x, y)
+
+    def bbox(self) -> BBox:
+        n = 2 ** self.z
+        return BBox(self.x / n * 360.0 - 180.0, _lat(self.y + 1, n),
+                    (self.x + 1) / n * 360.0 - 180.0, _lat(self.y, n))
+
+    def pixel(self, lon: float, lat: float) -> tuple[int, int]:
+        """Tile coordinates, y down, 0..EXTENT."""
+        n = 2 ** self.z
+        lat = max(-MAX_LAT, min(MAX_LAT, lat))
+        px = ((lon + 180.0) / 360.0 * n - self.x) * EXTENT
+        merc = math.asinh(math.tan(math.radians(lat)))
+        py = ((1.0 - merc / math.pi) / 2.0 * n - self.y) * EXTENT
+        return round(px), round(py)
+
+
+def _lat(y: int, n: int) -> float:
+    return math.degrees(math.atan(math.sinh(math.pi * (1.0 - 2.0 * y / n))))
+
+
+def _points(session: Session, box: BBox, cap: int) -> list[tuple] | None:
+    """The tile's signs, or None when there are more than ``cap``."""
+    rows = session.execute(
+        select(MapSign.id, MapSign.cls, MapSign.state, MapSign.lon_deg, MapSign.lat_deg)
+        .where(live_in_bbox(box)).limit(cap + 1)).all()
+    return None if len(rows) > cap else [(1, *r) for r in rows]
+
+
+def _clusters(session: Session, box: BBox, grid: int) -> list[tuple]:
+    """(count, id, class, state, lon, lat) per non-empty cell of a grid x grid split of ``box``;
+    class and state None where the members differ. Everything read is in the covering index."""
+    floor = func.floor if session.get_bind().dialect.name == "postgresql" else (
+        lambda v: cast(v, Integer))  # SQLite: truncation is floor for the non-negative offsets here
+    cw = (box.max_lon - box.min_lon) / grid
+    ch = (box.max_lat - box.min_lat) / grid
+    cx = floor((MapSign.lon_deg - box.min_lon) / cw)
+    cy = floor((MapSign.lat_deg - box.min_lat) / ch)
+    rows = session.execute(
+        select(func.count(), func.min(MapSign.id), func.min(MapSign.cls), func.max(MapSign.cls),
+               func.min(MapSign.state), func.max(MapSign.state), func.avg(MapSign.lon_deg),
+               func.avg(MapSign.lat_deg))
+        .where(live_in_bbox(box)).group_by(cx, cy)).all()
+    return [(n, first, cls_lo if cls_lo == cls_hi else None,
+             st_lo if st_lo == st_hi else None, lon, lat)
+            for n, first, cls_lo, cls_hi, st_lo, st_hi, lon, lat in rows]
+
+
+def tile_features(session: Session, tile: Tile, *, points_min_zoom: int, max_points: int,
+                  grid: int) -> list[dict[str, Any]]:
+    box = tile.bbox()
+    found = _points(session, box, max_points) if tile.z >= points_min_zoom else None
+    if found is None:
+        found = _clusters(session, box, grid)
+    features = []
+    for count, sign_id, cls, state, lon, lat in found:
+        props: dict[str, Any] = {"id": sign_id, "count": int(count)}
+        if cls is not None:
+            props["class"] = cls
+        if state is not None:
+            props["state"] = state
+        features.append({"geometry": Point(tile.pixel(float(lon), float(lat))),
+                         "properties": props})
+    return features
+
+
+def encode(features: list[dict[str, Any]]) -> bytes:
+    return mapbox_vector_tile.encode([{"name": LAYER, "features": features}],
+                                     default_options={"y_coord_down": True, "extents": EXTENT})
+
+
+def decode(data: bytes) -> dict[str, Any]:
+    """The tile as the encoder's own decoder reads it (y down, as encoded)."""
+    return mapbox_vector_tile.decode(data, default_options={"y_coord_down": True})
