@@ -1,5 +1,5 @@
 """``signmap bench [--quick]``, ``signmap bench sensitivity``, ``signmap bench fusion`` and
-``signmap bench corpus``: argument parsing only."""
+``signmap bench corpus`` and ``signmap bench map``: argument parsing only."""
 
 from __future__ import annotations
 
@@ -99,6 +99,55 @@ def _add_corpus_parser(bench_sub) -> None:
     c.set_defaults(func=run_corpus_command)
 
 
+def run_map_command(args) -> int:
+    import sys
+
+    from bench.map_bench import QUICK_SIGNS, MapBenchOptions, run_map_bench
+
+    quick = args.quick
+    opts = MapBenchOptions(
+        signs=args.signs if args.signs is not None else (QUICK_SIGNS if quick else 1_000_000),
+        sqlite_signs=(args.sqlite_signs if args.sqlite_signs is not None
+                      else (QUICK_SIGNS if quick else 100_000)),
+        postgres_url=None if args.no_postgres else args.postgres_url,
+        concurrency=args.concurrency, requests=args.requests or (40 if quick else 400),
+        quick=quick, cache_dir=args.cache, out_dir=args.out, base_url=args.base_url, key=args.key)
+    try:
+        md, js, _ = run_map_bench(opts, command="signmap bench map " + " ".join(sys.argv[3:]))
+    except ValueError as exc:
+        raise SystemExit(f"signmap bench map: {exc}") from exc
+    print(md.read_text())
+    print(f"wrote {md} and {js}")
+    return 0
+
+
+def _add_map_parser(bench_sub) -> None:
+    m = bench_sub.add_parser(
+        "map", help="map reads at scale: sign pages and vector tiles under concurrent clients",
+        description="Loads N synthetic map signs into PostgreSQL (database "
+        "signmap_bench_map_<N>, kept for the next run) and a smaller map into SQLite (under "
+        "--cache), starts `signmap serve` on 127.0.0.1 and times GET /signs?bbox= pages of a "
+        "city (following `next`), vector tiles at zoom 12-16 and 6-11, and /health meanwhile. "
+        "Writes <date>-map.md and .json.")
+    _common(m, inherit=True)
+    m.add_argument("--signs", type=int, default=None,
+                   help="map signs on PostgreSQL (default 1,000,000; --quick: 3,000; 0 = skip)")
+    m.add_argument("--sqlite-signs", type=int, default=None,
+                   help="map signs on SQLite (default 100,000; --quick: 3,000; 0 = skip)")
+    m.add_argument("--postgres-url", default="postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
+                   help="a PostgreSQL database to connect to for creating the bench's own "
+                   "(default: %(default)s)")
+    m.add_argument("--no-postgres", action="store_true", help="SQLite only")
+    m.add_argument("--concurrency", type=int, default=8, help="clients at once (default 8)")
+    m.add_argument("--requests", type=int, default=None,
+                   help="requests per scenario (default 400; --quick: 40)")
+    m.add_argument("--base-url", default=None,
+                   help="measure this already running server instead (its map must be the "
+                   "synthetic one of --signs); needs --key")
+    m.add_argument("--key", default=None, help="a reader key of --base-url's server")
+    m.set_defaults(func=run_map_command)
+
+
 def add_parsers(sub) -> None:
     """Add ``bench`` (with its ``sensitivity``, ``fusion`` and ``corpus`` subcommands) to the
     ``signmap`` subparsers."""
@@ -116,6 +165,7 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    _add_map_parser(bench_sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -77,7 +77,7 @@ def rows(m: SyntheticMap, chunk: int = 100_000):
 
 
 def first_id(m: SyntheticMap) -> str:
-    return next(rows(m, chunk=1))[0]
+    return next(rows(m))[0]
 
 
 def _holds(url: str, m: SyntheticMap) -> bool:

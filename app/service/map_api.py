@@ -16,7 +16,7 @@ from app.service import fusion_job
 from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
-from app.service.map_read import heavy_read, signs_page_json
+from app.service.map_read import heavy_read, parse_cursor, signs_page_json
 from app.service.map_tiles import MEDIA_TYPE, Tile, encode, tile_features
 from app.service.queries import BBox
 from app.service.schemas import ErrorOut, PointGeometry
@@ -81,10 +81,11 @@ def map_sign_feature(row: MapSign, **extra: Any) -> dict[str, Any]:
             summary="The fused map's signs in a box (GeoJSON), paginated",
             description="`bbox=minlon,minlat,maxlon,maxlat` in WGS84 degrees (minlon > maxlon "
                         "crosses the antimeridian); optional `class`, `state`, `since` (updated at "
-                        "or after, ISO 8601). Ordered by id; follow `next` with `cursor`. A page "
-                        "holds at most `limit` signs and never more than the service's page "
-                        "maximum (SIGNMAP_MAP_PAGE_MAX, default 5000).",
-            responses={400: {"model": ErrorOut, "description": "bad bbox"}, **_AUTH})
+                        "or after, ISO 8601). Ordered by position (latitude, longitude, then id); "
+                        "follow `next` with `cursor` (opaque: pass it unchanged). A page holds "
+                        "at most `limit` signs and never more than the service's page maximum "
+                        "(SIGNMAP_MAP_PAGE_MAX, default 5000).",
+            responses={400: {"model": ErrorOut, "description": "bad bbox or cursor"}, **_AUTH})
 async def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
                         bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
                         cls: Annotated[str | None, Query(alias="class", examples=["stop"])] = None,
@@ -93,6 +94,7 @@ async def get_map_signs(request: Request, who: Annotated[Principal, Depends(requ
                         cursor: str | None = None) -> Response:
     try:
         box = BBox.parse(bbox)
+        after = None if cursor is None else parse_cursor(cursor)
     except ValueError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
     limit = min(limit, request.app.state.settings.map_page_max)
@@ -100,7 +102,7 @@ async def get_map_signs(request: Request, who: Annotated[Principal, Depends(requ
 
     def read() -> bytes:
         with session_scope(_url(request)) as session:
-            return signs_page_json(session, box, cls, since, state, cursor, limit)
+            return signs_page_json(session, box, cls, since, state, after, limit)
 
     # Built here rather than through response_model: validating thousands of features one by one
     # was most of the time of a page (issue 13, finding 7); tests check the shape instead.

@@ -1,17 +1,17 @@
-"""The map's heavy reads: a page of GET /signs (keyset on id, two-step through covering indexes) and
-the bounded concurrency every heavy map read runs under, so that a burst of them leaves the rest of
-the API (``/health``, uploads, polling) its threads."""
+"""The map's heavy reads: a page of GET /signs (keyset along the index of migration 0003), and the
+bounded concurrency every heavy map read runs under, so that a burst of them leaves the rest of the
+API (``/health``, uploads, polling) its threads."""
 
 from __future__ import annotations
 
 import asyncio
-import json
 from datetime import datetime, timezone
 from typing import Any, Callable, TypeVar
 
 import anyio
+import orjson
 from fastapi import Request
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, or_, select, tuple_
 from sqlalchemy.orm import Session
 
 from app.service.models import MapSign
@@ -26,55 +26,84 @@ PAGE_COLUMNS = (MapSign.id, MapSign.cls, MapSign.lon_deg, MapSign.lat_deg, MapSi
 
 
 def live_in_bbox(bbox: BBox):
-    """Plain lat/lon ranges on live signs: the partial indexes of migration 0003 answer them
-    index-only, on PostgreSQL and SQLite alike, and the planner has real statistics for them
-    (PostgreSQL's estimate for a GiST point-in-box is a constant)."""
+    """Plain lat/lon ranges on live signs: the partial index of migration 0003 answers them on
+    PostgreSQL and SQLite alike, and the planner has real statistics for them (PostgreSQL's
+    estimate for a GiST point-in-box is a constant)."""
     return and_(MapSign.removed_at.is_(None),
                 MapSign.lat_deg.between(bbox.min_lat, bbox.max_lat),
                 or_(*(MapSign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
 
 
+class BadCursor(ValueError):
+    pass
+
+
+def parse_cursor(text: str) -> tuple[float, float, str]:
+    """``lat,lon,id`` of the previous page's last sign, as ``next`` gave it."""
+    lat, sep1, rest = text.partition(",")
+    lon, sep2, sign_id = rest.partition(",")
+    try:
+        if not (sep1 and sep2 and sign_id):
+            raise ValueError
+        return float(lat), float(lon), sign_id
+    except ValueError:
+        raise BadCursor("cursor is not one this service gave: pass the previous page's `next` "
+                        "unchanged") from None
+
+
+def make_cursor(lat: float, lon: float, sign_id: str) -> str:
+    return f"{lat!r},{lon!r},{sign_id}"
+
+
 def page_query(bbox: BBox, cls: str | None, since: datetime | None, state: str | None,
-               cursor: str | None, limit: int):
-    """The ids of one page first (index-only: id, lat and lon are in the indexes), then only those
-    rows: sorting a city's worth of ids is cheap, fetching a city's worth of rows is not."""
-    ids = select(MapSign.id).where(live_in_bbox(bbox))
+               cursor: tuple[float, float, str] | None, limit: int):
+    """Ordered by (lat, lon, id), the order of the covering index: a page reads its own signs
+    and the few of the box's latitude band it skips, however deep it is. (Ordered by id, every page
+    sorted the whole box: ~29k signs of a city box at 1 M signs, 25-40 ms a page.)"""
+    query = select(*PAGE_COLUMNS).where(live_in_bbox(bbox))
     if cls is not None:
-        ids = ids.where(MapSign.cls == cls)
+        query = query.where(MapSign.cls == cls)
     if since is not None:
-        ids = ids.where(MapSign.updated_at >= since)
+        query = query.where(MapSign.updated_at >= since)
     if state is not None:
-        ids = ids.where(MapSign.state == state)
+        query = query.where(MapSign.state == state)
     if cursor is not None:
-        ids = ids.where(MapSign.id > cursor)
-    page = ids.order_by(MapSign.id).limit(limit).subquery()
-    return select(*PAGE_COLUMNS).join(page, MapSign.id == page.c.id).order_by(MapSign.id)
+        query = query.where(tuple_(MapSign.lat_deg, MapSign.lon_deg, MapSign.id) > tuple_(*cursor))
+    return query.order_by(MapSign.lat_deg, MapSign.lon_deg, MapSign.id).limit(limit)
 
 
-def _utc_text(when: datetime) -> str:
-    # As pydantic writes an aware UTC datetime (the format this route always had).
-    return when.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+class _UtcText(dict):
+    """Datetime -> text as pydantic writes an aware UTC one (the format this route always had);
+    one page's signs share few distinct times (their journeys'), each formatted once."""
+
+    def __missing__(self, when: datetime) -> str:
+        text = self[when] = when.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+        return text
 
 
-def _feature(row) -> dict[str, Any]:
+def _feature(row, utc: _UtcText) -> dict[str, Any]:
     (sign_id, cls, lon, lat, alt, state, std_m, n_journeys, n_obs, first, last) = row
     return {"type": "Feature", "id": sign_id,
             "geometry": {"type": "Point",
                          "coordinates": [lon, lat] if alt is None else [lon, lat, alt]},
             "properties": {"id": sign_id, "class": cls, "state": state, "std_m": std_m,
                            "n_journeys": n_journeys, "n_observations": n_obs,
-                           "first_seen_at": _utc_text(first), "last_seen_at": _utc_text(last)}}
+                           "first_seen_at": utc[first], "last_seen_at": utc[last]}}
 
 
 def signs_page_json(session: Session, bbox: BBox, cls: str | None, since: datetime | None,
-                    state: str | None, cursor: str | None, limit: int) -> bytes:
+                    state: str | None, cursor: tuple[float, float, str] | None,
+                    limit: int) -> bytes:
     """One page of GET /signs as the JSON bytes of its FeatureCollection (plain tuples to dicts to
-    one json.dumps: no ORM objects, no response-model validation per sign)."""
-    rows = session.execute(page_query(bbox, cls, since, state, cursor, limit + 1)).all()
+    one orjson.dumps: no ORM objects, no response-model validation per sign)."""
+    rows = session.connection().execute(
+        page_query(bbox, cls, since, state, cursor, limit + 1)).all()
     page = rows[:limit]
-    body = {"type": "FeatureCollection", "features": [_feature(r) for r in page],
-            "next": page[-1][0] if len(rows) > limit else None}
-    return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
+    utc = _UtcText()
+    body = {"type": "FeatureCollection", "features": [_feature(r, utc) for r in page],
+            "next": make_cursor(page[-1][3], page[-1][2], page[-1][0]) if len(rows) > limit
+            else None}
+    return orjson.dumps(body)
 
 
 def _limiter(request: Request) -> anyio.CapacityLimiter:
