@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import mapbox_vector_tile
-from shapely.geometry import Point
+import numpy as np
+import shapely
 from sqlalchemy import Integer, cast, func, select
 from sqlalchemy.orm import Session
 
@@ -48,14 +49,13 @@ class Tile:
         return BBox(self.x / n * 360.0 - 180.0, _lat(self.y + 1, n),
                     (self.x + 1) / n * 360.0 - 180.0, _lat(self.y, n))
 
-    def pixel(self, lon: float, lat: float) -> tuple[int, int]:
-        """Tile coordinates, y down, 0..EXTENT."""
+    def pixels(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """(N, 2) tile coordinates, y down, 0..EXTENT."""
         n = 2 ** self.z
-        lat = max(-MAX_LAT, min(MAX_LAT, lat))
+        merc = np.arcsinh(np.tan(np.radians(np.clip(lat, -MAX_LAT, MAX_LAT))))
         px = ((lon + 180.0) / 360.0 * n - self.x) * EXTENT
-        merc = math.asinh(math.tan(math.radians(lat)))
-        py = ((1.0 - merc / math.pi) / 2.0 * n - self.y) * EXTENT
-        return round(px), round(py)
+        py = ((1.0 - merc / np.pi) / 2.0 * n - self.y) * EXTENT
+        return np.rint(np.column_stack([px, py]))
 
 
 def _lat(y: int, n: int) -> float:
@@ -64,7 +64,7 @@ def _lat(y: int, n: int) -> float:
 
 def _points(session: Session, box: BBox, cap: int) -> list[tuple] | None:
     """The tile's signs, or None when there are more than ``cap``."""
-    rows = session.execute(
+    rows = session.connection().execute(
         select(MapSign.id, MapSign.cls, MapSign.state, MapSign.lon_deg, MapSign.lat_deg)
         .where(live_in_bbox(box)).limit(cap + 1)).all()
     return None if len(rows) > cap else [(1, *r) for r in rows]
@@ -79,7 +79,7 @@ def _clusters(session: Session, box: BBox, grid: int) -> list[tuple]:
     ch = (box.max_lat - box.min_lat) / grid
     cx = floor((MapSign.lon_deg - box.min_lon) / cw)
     cy = floor((MapSign.lat_deg - box.min_lat) / ch)
-    rows = session.execute(
+    rows = session.connection().execute(
         select(func.count(), func.min(MapSign.id), func.min(MapSign.cls), func.max(MapSign.cls),
                func.min(MapSign.state), func.max(MapSign.state), func.avg(MapSign.lon_deg),
                func.avg(MapSign.lat_deg))
@@ -95,15 +95,16 @@ def tile_features(session: Session, tile: Tile, *, points_min_zoom: int, max_poi
     found = _points(session, box, max_points) if tile.z >= points_min_zoom else None
     if found is None:
         found = _clusters(session, box, grid)
+    lonlat = np.array([(r[4], r[5]) for r in found], dtype=float).reshape(-1, 2)
+    points = shapely.points(tile.pixels(lonlat[:, 0], lonlat[:, 1]))
     features = []
-    for count, sign_id, cls, state, lon, lat in found:
+    for point, (count, sign_id, cls, state, _lon, _lat) in zip(points, found):
         props: dict[str, Any] = {"id": sign_id, "count": int(count)}
         if cls is not None:
             props["class"] = cls
         if state is not None:
             props["state"] = state
-        features.append({"geometry": Point(tile.pixel(float(lon), float(lat))),
-                         "properties": props})
+        features.append({"geometry": point, "properties": props})
     return features
 
 
