@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+SCENARIOS = ("pages", "big-pages", "tiles", "low-tiles")  # bench.map_load.SCENARIOS
+
 BENCH_DIR = Path(__file__).resolve().parent
 
 
@@ -110,8 +112,8 @@ def run_map_command(args) -> int:
         sqlite_signs=(args.sqlite_signs if args.sqlite_signs is not None
                       else (QUICK_SIGNS if quick else 100_000)),
         postgres_url=None if args.no_postgres else args.postgres_url,
-        concurrency=args.concurrency, requests=args.requests or (40 if quick else 400),
-        quick=quick, cache_dir=args.cache, out_dir=args.out, base_url=args.base_url, key=args.key)
+        concurrency=tuple(args.concurrency), requests=args.requests or (40 if quick else 400),
+        scenarios=tuple(args.scenarios), quick=quick, cache_dir=args.cache, out_dir=args.out, base_url=args.base_url, key=args.key)
     try:
         md, js, _ = run_map_bench(opts, command="signmap bench map " + " ".join(sys.argv[3:]))
     except ValueError as exc:
@@ -119,6 +121,25 @@ def run_map_command(args) -> int:
     print(md.read_text())
     print(f"wrote {md} and {js}")
     return 0
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 2,8, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError("at least one client")
+    return values
+
+
+def _scenario_list(text: str) -> list[str]:
+    values = [v for v in text.split(",") if v]
+    unknown = sorted(set(values) - set(SCENARIOS))
+    if unknown or not values:
+        raise argparse.ArgumentTypeError(f"unknown scenario {', '.join(unknown) or '(none)'}; "
+                                         f"choose from {','.join(SCENARIOS)}")
+    return values
 
 
 def _add_map_parser(bench_sub) -> None:
@@ -138,7 +159,10 @@ def _add_map_parser(bench_sub) -> None:
                    help="a PostgreSQL database to connect to for creating the bench's own "
                    "(default: %(default)s)")
     m.add_argument("--no-postgres", action="store_true", help="SQLite only")
-    m.add_argument("--concurrency", type=int, default=8, help="clients at once (default 8)")
+    m.add_argument("--concurrency", type=_int_list, default=[2, 8],
+                   help="clients at once; a comma-separated list runs each (default 2,8)")
+    m.add_argument("--scenarios", type=_scenario_list, default=list(SCENARIOS),
+                   help=f"comma-separated, of {','.join(SCENARIOS)} (default: all)")
     m.add_argument("--requests", type=int, default=None,
                    help="requests per scenario (default 400; --quick: 40)")
     m.add_argument("--base-url", default=None,

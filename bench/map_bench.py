@@ -14,7 +14,7 @@ from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
 from bench.map_data import ensure_loaded, layout
-from bench.map_load import new_key, run_scenarios, serve
+from bench.map_load import SCENARIOS, new_key, run_scenarios, serve
 
 QUICK_SIGNS = 3000
 
@@ -24,7 +24,8 @@ class MapBenchOptions:
     signs: int = 1_000_000
     sqlite_signs: int = 100_000
     postgres_url: str | None = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
-    concurrency: int = 8
+    concurrency: tuple[int, ...] = (2, 8)
+    scenarios: tuple[str, ...] = SCENARIOS
     requests: int = 400
     quick: bool = False
     cache_dir: Path = Path("bench/cache")
@@ -51,32 +52,43 @@ def _measure(label: str, url: str, n: int, opts: MapBenchOptions, log) -> dict:
     t0 = time.perf_counter()
     m, loaded = ensure_loaded(url, n, log=log)
     load_s = time.perf_counter() - t0
-    log(f"{label}: {n:,} signs {'loaded' if loaded else 'reused'} in {load_s:.1f} s; "
-        f"{opts.requests} requests per scenario, {opts.concurrency} at a time")
+    log(f"{label}: {n:,} signs {'loaded' if loaded else 'reused'} in {load_s:.1f} s")
     key = new_key()
     with serve(url, key) as base:
-        rows = [t.row() for t in run_scenarios(base, key, m, opts.concurrency, opts.requests)]
+        rows = _rows(base, key, m, opts)
     return {"database": label, "signs": n, "loaded": loaded, "load_s": round(load_s, 1),
             "rows": rows}
+
+
+def _rows(base: str, key: str, m, opts: MapBenchOptions) -> list[dict]:
+    rows = []
+    for concurrency in opts.concurrency:
+        for timed in run_scenarios(base, key, m, concurrency, opts.requests, opts.scenarios):
+            rows.append({**timed.row(), "concurrency": concurrency})
+    return rows
 
 
 def _markdown(runs: list[dict], opts: MapBenchOptions, command: str) -> str:
     lines = [f"# Map at scale ({date.today().isoformat()})", "",
              f"`{command}` on {os.cpu_count()} cores, load average "
              f"{os.getloadavg()[0]:.2f} at the end; a real `signmap serve` (one uvicorn process, "
-             f"no worker) on 127.0.0.1; {opts.concurrency} concurrent clients, {opts.requests} "
-             "requests per scenario; `/health` polled every 0.1 s during each one. Latency is "
-             "until the whole body is read.", ""]
+             f"no worker) on 127.0.0.1; {opts.requests} requests per scenario with C clients at "
+             "once (the `C` column); `/health` polled every 0.1 s during each scenario. Latency "
+             "is until the whole body is read. Indented rows split the row above by zoom.", ""]
     for run in runs:
         lines += [f"## {run['database']}, {run['signs']:,} signs "
                   f"({'loaded' if run['loaded'] else 'cached database'}"
                   f"{', %.0f s' % run['load_s'] if run['loaded'] else ''})", "",
-                  "| scenario | requests | errors | p50 ms | p95 ms | p99 ms | max ms | req/s |",
-                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+                  "| C | scenario | requests | errors | p50 ms | p95 ms | p99 ms | max ms | req/s |",
+                  "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for r in run["rows"]:
-            lines.append(f"| {r['scenario']} | {r['requests']} | {r['errors']} | {r['p50_ms']} | "
-                         f"{r['p95_ms']} | {r['p99_ms']} | {r['max_ms']} | {r['req_per_s']} |")
-        notes = [f"{r['scenario']}: {r['note']}" for r in run["rows"] if r["note"]]
+            rate = r["req_per_s"] or "-"
+            scenario = r["scenario"].replace("  ", "&nbsp;&nbsp;")
+            lines.append(f"| {r['concurrency']} | {scenario} | {r['requests']} | {r['errors']} | "
+                         f"{r['p50_ms']} | {r['p95_ms']} | {r['p99_ms']} | {r['max_ms']} | "
+                         f"{rate} |")
+        notes = [f"C={r['concurrency']}, {r['scenario']}: {r['note']}" for r in run["rows"]
+                 if r["note"]]
         lines += ["", *(f"- {n}" for n in notes), ""]
     return "\n".join(lines)
 
@@ -88,8 +100,7 @@ def run_map_bench(opts: MapBenchOptions, command: str = "signmap bench map", log
         if not opts.key:
             raise ValueError("--base-url needs --key")
         m = layout(opts.signs)
-        rows = [t.row() for t in run_scenarios(opts.base_url, opts.key, m, opts.concurrency,
-                                               opts.requests)]
+        rows = _rows(opts.base_url, opts.key, m, opts)
         runs.append({"database": f"server at {opts.base_url}", "signs": opts.signs,
                      "loaded": False, "load_s": 0, "rows": rows})
     if not opts.base_url and opts.postgres_url and opts.signs:

@@ -33,6 +33,7 @@ HEALTH_EVERY_S = 0.1
 class Timings:
     name: str
     latencies_s: list[float] = field(default_factory=list)
+    paths: list[str] = field(default_factory=list)  # what each latency was of
     errors: int = 0
     wall_s: float = 0.0
     note: str = ""
@@ -151,6 +152,7 @@ async def _run(base: str, key: str, concurrency: int, n_requests: int, name: str
                 except httpx.HTTPError:
                     body, ok = None, False
                 out.latencies_s.append(time.perf_counter() - t0)
+                out.paths.append(path)
                 out.errors += not ok
                 if not ok:
                     body = None
@@ -182,26 +184,42 @@ def bbox_walker(m: SyntheticMap, limit: int):
     return next_path, depth
 
 
-def run_scenarios(base: str, key: str, m: SyntheticMap, concurrency: int, n_requests: int
-                  ) -> list[Timings]:
+SCENARIOS = ("pages", "big-pages", "tiles", "low-tiles")
+
+
+def _by_zoom(timed: Timings) -> list[Timings]:
+    """The tile scenario's requests split by zoom."""
+    zooms: dict[int, Timings] = {}
+    for path, latency in zip(timed.paths, timed.latencies_s):
+        z = int(path.split("/")[4])
+        zooms.setdefault(z, Timings(f"  tiles z{z}", wall_s=0.0)).latencies_s.append(latency)
+    return [zooms[z] for z in sorted(zooms)]
+
+
+def run_scenarios(base: str, key: str, m: SyntheticMap, concurrency: int, n_requests: int,
+                  scenarios: tuple[str, ...] = SCENARIOS) -> list[Timings]:
     results: list[Timings] = []
 
-    def one(name: str, next_path, note: str = "") -> None:
+    def one(name: str, next_path) -> Timings:
         health = Timings(f"/health during: {name}")
         timed = asyncio.run(_run(base, key, concurrency, n_requests, name, next_path, health))
-        timed.note = note
         results.extend([timed, health])
+        return timed
 
-    walk, depth = bbox_walker(m, 1000)
-    one("bbox city, limit=1000, following next", walk)
-    results[-2].note = (f"{len(depth)} walks finished, pages per walk: "
-                        f"{min(depth) if depth else '-'}..{max(depth) if depth else '-'}")
-    big, _ = bbox_walker(m, 10000)
-    one("bbox city, limit=10000 (capped by SIGNMAP_MAP_PAGE_MAX)", big)
-    for zooms, name in ((range(12, 17), "tiles z12-16"), (range(6, 12), "tiles z6-11")):
-        paths = tile_paths(m, zooms, n_requests)
-        it = iter(range(n_requests * 2))
-        one(name, lambda w, body, p=paths, i=it: p[next(i) % len(p)])
+    if "pages" in scenarios:
+        walk, depth = bbox_walker(m, 1000)
+        one("bbox city, limit=1000, following next", walk).note = (
+            f"{len(depth)} walks through a city box finished, pages per walk: "
+            f"{min(depth) if depth else '-'}..{max(depth) if depth else '-'}")
+    if "big-pages" in scenarios:
+        one("bbox city, limit=10000 (capped by SIGNMAP_MAP_PAGE_MAX)", bbox_walker(m, 10000)[0])
+    for scenario, zooms, name in (("tiles", range(12, 17), "tiles z12-16"),
+                                  ("low-tiles", range(6, 12), "tiles z6-11")):
+        if scenario not in scenarios:
+            continue
+        paths = iter(tile_paths(m, zooms, n_requests))
+        timed = one(name, lambda w, body, paths=paths: next(paths))
+        results[-1:-1] = _by_zoom(timed)  # before its /health row
     return results
 
 

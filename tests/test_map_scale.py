@@ -234,7 +234,7 @@ def test_bench_map_smoke(request, tmp_path, database):
     n = 400 + secrets.randbelow(100)  # a database of its own: signmap_bench_map_<n>
     opts = MapBenchOptions(signs=n if database == "postgres" else 0,
                            sqlite_signs=n if database == "sqlite" else 0, postgres_url=PG_URL,
-                           concurrency=2, requests=12, quick=True, cache_dir=tmp_path / "cache",
+                           concurrency=(2,), requests=12, quick=True, cache_dir=tmp_path / "cache",
                            out_dir=tmp_path / "out")
     try:
         md, js, runs = run_map_bench(opts, log=lambda *_: None)
@@ -251,5 +251,21 @@ def test_bench_map_smoke(request, tmp_path, database):
     for scenario in ("bbox city, limit=1000, following next", "tiles z12-16", "tiles z6-11"):
         assert rows[scenario]["requests"] == 12 and rows[scenario]["errors"] == 0
         assert rows[f"/health during: {scenario}"]["errors"] == 0
-    assert md.name.endswith("-map-quick.md") and "| tiles z12-16 | 12 | 0 |" in md.read_text()
+    zooms = [r for r in runs[0]["rows"] if r["scenario"].startswith("  tiles z")]
+    assert sum(r["requests"] for r in zooms) == 24  # both tile scenarios, split by zoom
+    assert md.name.endswith("-map-quick.md") and "| 2 | tiles z12-16 | 12 | 0 |" in md.read_text()
     assert js.exists()
+
+
+def test_bench_map_cli_knows_the_scenarios():
+    from bench import cli
+    from bench.map_load import SCENARIOS
+
+    assert cli.SCENARIOS == SCENARIOS
+    parser = cli.argparse.ArgumentParser()
+    cli.add_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["bench", "map", "--quick", "--concurrency", "1,4",
+                              "--scenarios", "pages,tiles"])
+    assert (args.concurrency, args.scenarios) == ([1, 4], ["pages", "tiles"])
+    with pytest.raises(SystemExit):
+        parser.parse_args(["bench", "map", "--scenarios", "pages,nope"])
