@@ -52,7 +52,7 @@ class Settings(BaseSettings):
         2, ge=1, description="heavy map reads (sign pages, tiles) run at once; more wait without "
                              "holding a thread the rest of the API needs")
     map_page_max: int = Field(
-        5000, ge=1, description="signs per GET /signs page at most, whatever `limit` asks; "
+        2000, ge=1, description="signs per GET /signs page at most, whatever `limit` asks; "
                                 "clients follow `next`")
     tile_max_zoom: int = Field(22, ge=0, le=30, description="deepest zoom of the vector tiles")
     tile_points_min_zoom: int = Field(

@@ -84,7 +84,7 @@ def map_sign_feature(row: MapSign, **extra: Any) -> dict[str, Any]:
                         "or after, ISO 8601). Ordered by position (latitude, longitude, then id); "
                         "follow `next` with `cursor` (opaque: pass it unchanged). A page holds "
                         "at most `limit` signs and never more than the service's page maximum "
-                        "(SIGNMAP_MAP_PAGE_MAX, default 5000).",
+                        "(SIGNMAP_MAP_PAGE_MAX, default 2000).",
             responses={400: {"model": ErrorOut, "description": "bad bbox or cursor"}, **_AUTH})
 async def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
                         bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
