@@ -150,7 +150,12 @@ def _add_map_parser(bench_sub) -> None:
         "--cache), starts `signmap serve` on 127.0.0.1 and times GET /signs?bbox= pages of a "
         "city (following `next`), vector tiles at zoom 12-16 and 6-11, and /health meanwhile. "
         "Writes <date>-map.md and .json.")
-    _common(m, inherit=True)
+    m.add_argument("--quick", action="store_true",
+                   help="a small map and few requests (seconds; writes <date>-map-quick.md)")
+    m.add_argument("--out", type=Path, default=BENCH_DIR / "results",
+                   help="where the markdown and JSON results go (default bench/results)")
+    m.add_argument("--cache", type=Path, default=BENCH_DIR / "cache",
+                   help="where the SQLite map is kept between runs (default bench/cache)")
     m.add_argument("--signs", type=int, default=None,
                    help="map signs on PostgreSQL (default 1,000,000; --quick: 3,000; 0 = skip)")
     m.add_argument("--sqlite-signs", type=int, default=None,
