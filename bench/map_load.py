@@ -208,9 +208,9 @@ def run_scenarios(base: str, key: str, m: SyntheticMap, concurrency: int, n_requ
 
     if "pages" in scenarios:
         walk, depth = bbox_walker(m, 1000)
-        one("bbox city, limit=1000, following next", walk).note = (
-            f"{len(depth)} walks through a city box finished, pages per walk: "
-            f"{min(depth) if depth else '-'}..{max(depth) if depth else '-'}")
+        timed = one("bbox city, limit=1000, following next", walk)
+        timed.note = (f"{len(depth)} walks through a city box finished, pages per walk: "
+                      f"{min(depth) if depth else '-'}..{max(depth) if depth else '-'}")
     if "big-pages" in scenarios:
         one("bbox city, limit=10000 (capped by SIGNMAP_MAP_PAGE_MAX)", bbox_walker(m, 10000)[0])
     for scenario, zooms, name in (("tiles", range(12, 17), "tiles z12-16"),
