@@ -24,7 +24,7 @@ def journey_sign_features(signs, id_prefix: str = "") -> list[dict[str, Any]]:
         sign_feature(
             f"{id_prefix}{s.track_id}", s.cls, float(s.lon_deg), float(s.lat_deg),
             None if s.alt_m is None else float(s.alt_m),
-            track_id=s.track_id, std_m=float(s.std_m),
+            track_id=s.track_id, std_m=float(s.std_m), facing_deg=s.facing_deg,
             reprojection_rms_px=float(s.reprojection_rms_px),
             observations=[{"frame": o.frame_id, "x": o.p_cam[0], "y": o.p_cam[1], "z": o.p_cam[2]}
                           for o in s.observations],

@@ -91,7 +91,7 @@ def run_process(args) -> int:
     with tempfile.TemporaryDirectory(prefix="signmap-") as tmp:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)
         try:
-            journey = read_bundle(bundle, workdir / "bundle")
+            journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle)
         except BundleError as exc:
             print(f"signmap process: {bundle} is not a valid journey bundle: {exc.reason}",
                   file=sys.stderr)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from functools import cached_property
 from pathlib import Path
+from urllib.parse import urlsplit
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
-from app.pipeline.config import PipelineConfig
+from app.pipeline.config import BundleLimits, PipelineConfig
 
 
 class Settings(BaseSettings):
@@ -18,8 +19,16 @@ class Settings(BaseSettings):
     data_dir: Path = Path("./signmap-data")
     database_url: str | None = Field(None, description="default: SQLite file under data_dir")
     broker_url: str | None = Field(None, description="default: none, an in-process worker runs jobs")
+    storage_url: str | None = Field(
+        None, description="where accepted bundles are kept: unset = data_dir/bundles (the API and "
+                          "workers then share data_dir); s3://bucket/prefix = an S3-compatible "
+                          "store, endpoint and credentials from AWS_ENDPOINT_URL, "
+                          "AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY")
     admin_key: str | None = None
     max_upload_mb: int = 2048
+    bundle: BundleLimits = Field(
+        BundleLimits(), description="what one bundle may unpack to and contain (rows, frames, "
+        "pixels), checked before the work is spent; SIGNMAP_BUNDLE__<NAME>")
     log_level: str = "INFO"
     # Admin dashboard (docs/service.md, "Dashboard").
     map_tile_url: str = Field(
@@ -61,6 +70,13 @@ class Settings(BaseSettings):
         1000, ge=1, description="a tile with more signs than this is clustered at any zoom")
     tile_cluster_grid: int = Field(
         16, ge=1, le=256, description="a clustered tile has at most this many cells per side")
+
+    @field_validator("storage_url")
+    @classmethod
+    def _s3_url(cls, value: str | None) -> str | None:
+        if value and (urlsplit(value).scheme != "s3" or not urlsplit(value).netloc):
+            raise ValueError(f"storage_url must look like s3://bucket/prefix, not {value!r}")
+        return value or None
 
     @cached_property
     def effective_database_url(self) -> str:

@@ -105,7 +105,8 @@ def half_summary(records: list[dict]) -> dict:
         # Full runs only (not --calibrate-only): the sign metrics of the suite, per journey.
         "signs_placed": sum(r["signs"]["n_signs"] for r in signed),
         "signs_mappable": sum(r["signs"]["n_mappable"] for r in signed),
-        "abs_median_m": quantile((r["signs"]["abs_median_m"] for r in signed), 50)}
+        "abs_median_m": quantile((r["signs"]["abs_median_m"] for r in signed), 50),
+        "facing_median_deg": quantile((r["signs"].get("facing_median_deg") for r in signed), 50)}
 
 
 def normalise(text: str) -> str:
@@ -219,7 +220,9 @@ def table_summary(report: dict) -> str:
         rows += [["signs placed / mappable", *(f"{x['signs_placed']}/{x['signs_mappable']}"
                                                for x in s)],
                  ["median of journeys' abs median sign error (m)",
-                  *(fmt(x["abs_median_m"], 3) for x in s)]]
+                  *(fmt(x["abs_median_m"], 3) for x in s)],
+                 ["median of journeys' median facing error (deg)",
+                  *(fmt(x.get("facing_median_deg"), 1) for x in s)]]
     return "### Summary\n\n" + md_table(["", *HALVES], rows)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.pipeline.facing import angle_between_deg
 from app.pipeline.geodesy import frame_at
 from app.pipeline.types import JourneyResult
 
@@ -32,7 +33,9 @@ def sign_errors(result: JourneyResult, truth: dict) -> dict[str, dict[str, float
         true_cam = {ob["frame"]: np.array([ob["x"], ob["y"], ob["z"]]) for ob in t["observations"]}
         rel = [np.linalg.norm(np.array(ob.p_cam) - true_cam[ob.frame_id])
                for ob in sign.observations if ob.frame_id in true_cam]
+        facing_err = (angle_between_deg(sign.facing_deg, t["facing_deg"])
+                      if sign.facing_deg is not None and "facing_deg" in t else float("nan"))
         out[sign.track_id] = {"abs_m": float(np.linalg.norm(est - true)),
                               "rel_m": float(np.mean(rel)) if rel else float("nan"),
-                              "std_m": float(sign.std_m)}
+                              "std_m": float(sign.std_m), "facing_err_deg": facing_err}
     return out

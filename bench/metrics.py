@@ -109,12 +109,15 @@ def sign_summary(errors: dict[str, dict[str, float]]) -> dict[str, float]:
     rel = np.array([e["rel_m"] for e in errors.values()], dtype=float)
     abs_m = np.array([e["abs_m"] for e in errors.values()], dtype=float)
     rel = rel[np.isfinite(rel)]
+    facing = np.array([e.get("facing_err_deg", np.nan) for e in errors.values()], dtype=float)
+    facing = facing[np.isfinite(facing)]
 
     def stat(fn, a):
         return float(fn(a)) if len(a) else float("nan")
     return {"n_signs": len(errors), "rel_mean_m": stat(np.mean, rel),
             "rel_median_m": stat(np.median, rel), "abs_mean_m": stat(np.mean, abs_m),
-            "abs_median_m": stat(np.median, abs_m)}
+            "abs_median_m": stat(np.median, abs_m),
+            "facing_median_deg": stat(np.median, facing)}
 
 
 def calibration_metrics(result: JourneyResult, truth: dict) -> dict:

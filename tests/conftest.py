@@ -111,6 +111,45 @@ def _forget_queues(client, prefix: str) -> None:
             client.zrem("unacked_index", tag)
 
 
+@pytest.fixture(scope="session")
+def s3_endpoint() -> Iterator[str]:
+    """A real S3-compatible HTTP endpoint for the session: moto's server on a free local port."""
+    from moto.server import ThreadedMotoServer
+
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    yield f"http://{host}:{port}"
+    server.stop()
+
+
+@pytest.fixture
+def s3_storage_url(s3_endpoint, monkeypatch) -> str:
+    """A fresh bucket on the session's S3 endpoint, with the standard AWS_* variables set for this
+    test and the worker processes it starts; returns the SIGNMAP_STORAGE_URL naming it."""
+    import boto3
+
+    for name in [n for n in os.environ if n.startswith("AWS_")]:
+        monkeypatch.delenv(name)
+    monkeypatch.setenv("AWS_ENDPOINT_URL", s3_endpoint)
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "signmap-test")
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "signmap-test-secret")
+    bucket = f"signmap-test-{secrets.token_hex(4)}"
+    boto3.client("s3").create_bucket(Bucket=bucket)
+    return f"s3://{bucket}/bundles"
+
+
+def s3_objects(storage_url: str) -> dict[str, bytes]:
+    """Every object of the bucket that ``storage_url`` names: key -> bytes."""
+    import boto3
+    from urllib.parse import urlsplit
+
+    client, bucket = boto3.client("s3"), urlsplit(storage_url).netloc
+    listed = client.list_objects_v2(Bucket=bucket).get("Contents", [])
+    return {o["Key"]: client.get_object(Bucket=bucket, Key=o["Key"])["Body"].read()
+            for o in listed}
+
+
 @dataclass
 class Stack:
     """One configured service: its settings, plus helpers to make keys and clients."""
@@ -178,11 +217,12 @@ def auth(key: str) -> dict[str, str]:
 def settings_env(settings: Settings) -> dict[str, str]:
     """The environment that makes a child process's Settings() equal ``settings``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("SIGNMAP_")}
-    for name, value in settings.model_dump(exclude={"pipeline", "fusion"}).items():
+    nested = ("pipeline", "fusion", "bundle")
+    for name, value in settings.model_dump(exclude=set(nested)).items():
         if value is not None:
             env[f"SIGNMAP_{name.upper()}"] = str(value)
-    env["SIGNMAP_PIPELINE"] = settings.pipeline.model_dump_json()
-    env["SIGNMAP_FUSION"] = settings.fusion.model_dump_json()
+    for name in nested:
+        env[f"SIGNMAP_{name.upper()}"] = getattr(settings, name).model_dump_json()
     return env
 
 

@@ -177,6 +177,7 @@ def test_report_renders_failed_and_missing_runs():
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_quick_bench_writes_tables_json_and_plots(tmp_path):
     from bench.runner import run_bench
 

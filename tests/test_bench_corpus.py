@@ -188,6 +188,7 @@ def _fake_corpus(root: Path) -> Path:
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):
     corpus = _fake_corpus(tmp_path / "corpus")
     paths = run_corpus(corpus, tmp_path / "out", calibrate_only=True, limit=1, tag="test")

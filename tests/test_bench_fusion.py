@@ -184,6 +184,7 @@ def test_cli_fusion_subcommand_inherits_options():
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_quick_fusion_bench_writes_table_json_and_plot(tmp_path):
     from bench.fusion import run_fusion
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.pipeline.bundle import BundleLimits, read_bundle
+from app.pipeline.bundle import BundleLimits, check_bundle, read_bundle
 from app.pipeline.gps import GpsFixes, interpolate_to_frames
 from app.pipeline.gps_exif import ExifFix, gps_from_exif
 from app.pipeline.types import BundleError, CameraModel
@@ -174,9 +174,18 @@ def test_decode_images_false_checks_headers_only(tmp_path):
     (BundleLimits(max_frames=4), "5 frames, more than the limit of 4"),
     (BundleLimits(max_member_bytes=5000), "more than the limit of 5000 bytes for this file"),
     (BundleLimits(max_frame_pixels=64 * 47), "is 64x48, more than the limit of 3008 pixels"),
+    (BundleLimits(max_detections=7), "detections.csv has more than 7 rows, the limit per journey"),
+    (BundleLimits(max_boxes_per_frame=1),
+     "detection row 4: frame 000001 has more than 1 detection boxes, the limit per frame"),
+    (BundleLimits(max_gps_rows=5), "gps.csv has more than 5 rows"),
 ])
 def test_limits(tmp_path, limits, fragment):
     assert fragment in _error(tmp_path, bf.valid_files(), limits=limits)
+
+
+def test_gpx_point_limit(tmp_path):
+    reason = _error(tmp_path, bf.valid_files(gps="gpx"), limits=BundleLimits(max_gps_rows=3))
+    assert "gps.gpx has more than 3 track points, the limit per journey" in reason
 
 
 def test_zip_bomb_over_the_declared_limit(tmp_path):
@@ -184,6 +193,27 @@ def test_zip_bomb_over_the_declared_limit(tmp_path):
     assert len(data) - len(bf.zip_bytes(bf.valid_files())) < 10_000  # 3 MiB of zeros in < 10 kB
     reason = _error(tmp_path, data, limits=BundleLimits(max_uncompressed_bytes=2 * 2**20))
     assert reason.startswith("bundle unpacks to 3.") and "more than the limit of 2.0 MiB" in reason
+
+
+def test_zip_inflating_many_times_its_size_is_refused_before_unpacking(tmp_path):
+    data = bf.zip_bytes(bf.zip_bomb_files(3 * 2**20))
+    limits = BundleLimits(max_unpack_ratio=20, max_unpack_ratio_floor_bytes=2**20)
+    reason = _error(tmp_path, data, limits=limits)
+    assert reason.startswith("bundle unpacks to 3.") and "more than 20 times its size" in reason
+    # Under the floor, a small bundle is not held to the ratio.
+    assert _read(tmp_path, data, limits=BundleLimits(max_unpack_ratio=20)).frame_ids
+
+
+def test_check_bundle_writes_nothing_and_builds_no_tracks(tmp_path):
+    zip_path = bf.write_zip(tmp_path / "b.zip", bf.valid_files(blank_track_ids=True))
+    checked = check_bundle(zip_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.zip"]
+    assert (checked.camera_id, checked.vehicle_id, checked.n_frames, checked.n_detections) == \
+        ("test-cam", "car-7", 5, 8)
+    truncated = tmp_path / "c.zip"
+    truncated.write_bytes(bf.broken_bundle("truncated_image")[0])
+    with pytest.raises(BundleError, match="frame 000002.png is not a readable image"):
+        check_bundle(truncated)  # frames are decoded: the header alone looks fine
 
 
 def test_entry_lying_about_its_size_is_refused(tmp_path):
@@ -196,6 +226,8 @@ def test_entry_lying_about_its_size_is_refused(tmp_path):
     ("manifest.json", b"[" * 100_000, "nested too deeply"),
     ("manifest.json", b'{"format": "signmap-journey/1"}', "camera_id: Field required"),
     ("manifest.json", b"\xff\xfe{}", "manifest.json is not UTF-8"),
+    ("detections.csv", bf.csv_bytes(bf.DETECTIONS_HEADER, bf.detection_rows()) + b"\xff\xfe\n",
+     "detections.csv is not UTF-8 text"),
     ("frames/000001.png", bf.image_bytes("png")[:8] + b"\x00" * 40, "not a readable image"),
     ("gps.csv", bf.csv_bytes(bf.GPS_HEADER, [("000000", "0.0", "49", "8", "")] +
                              [(f, "1.0", "", "", "") for f in bf.frame_ids()[1:]]),

@@ -1,9 +1,11 @@
-"""docker-compose.yml and the Dockerfile, checked statically (no Docker here): the four services,
-their environment, shared data volume and healthchecks, against the code they point at."""
+"""docker-compose.yml and the Dockerfile, checked statically (no Docker here): the services,
+their environment, the object store that replaced the shared data volume (issue 15) and
+healthchecks, against the code they point at."""
 
 from __future__ import annotations
 
 import re
+import shlex
 from urllib.parse import urlparse
 
 import pytest
@@ -22,16 +24,27 @@ def _env(service: dict) -> dict[str, str]:
     return {k: str(v) for k, v in service["environment"].items()}
 
 
+# The one-shot service that creates the bucket and exits (no healthcheck: it does not stay up).
+ONE_SHOT = "minio-init"
+# Variables read by boto3 rather than by Settings: the object store's endpoint and credentials.
+AWS_VARIABLES = {"AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"}
+
+
 def test_services_and_healthchecks(compose):
     services = compose["services"]
-    assert set(services) == {"api", "worker", "postgres", "redis"}
+    assert set(services) == {"api", "worker", "postgres", "redis", "minio", ONE_SHOT}
     for name, service in services.items():
+        if name == ONE_SHOT:
+            assert "healthcheck" not in service and service["restart"] == "no"
+            continue
         check = service["healthcheck"]
         assert check["test"][0] in ("CMD", "CMD-SHELL") and len(check["test"]) > 1, name
         assert check["retries"] >= 3, name
     api_deps, worker_deps = services["api"]["depends_on"], services["worker"]["depends_on"]
     assert {k: v["condition"] for k, v in api_deps.items()} == {
-        "postgres": "service_healthy", "redis": "service_healthy"}
+        "postgres": "service_healthy", "redis": "service_healthy",
+        ONE_SHOT: "service_completed_successfully"}  # the bucket exists before any upload
+    assert services[ONE_SHOT]["depends_on"]["minio"]["condition"] == "service_healthy"
     assert worker_deps["api"]["condition"] == "service_healthy"  # migrations ran
     assert services["worker"]["command"] == ["signmap", "worker"]
     assert "signmap db upgrade" in " ".join(services["api"]["command"])
@@ -52,16 +65,36 @@ def test_environment_points_at_the_compose_services(compose):
     from app.settings import Settings
 
     fields = set(Settings.model_fields)
-    for name in api:
+    for name in set(api) - AWS_VARIABLES:
         assert name.startswith("SIGNMAP_") and name[8:].lower() in fields, name
 
 
-def test_api_and_worker_share_the_data_volume(compose):
+def test_bundles_go_to_the_object_store_that_compose_starts(compose):
     services = compose["services"]
+    env = _env(services["api"])
+    assert AWS_VARIABLES <= set(env)
+    store = urlparse(env["SIGNMAP_STORAGE_URL"])
+    assert store.scheme == "s3" and store.path.strip("/")
+    endpoint = urlparse(env["AWS_ENDPOINT_URL"])
+    assert endpoint.hostname == "minio"
+    assert f":{endpoint.port}" == services["minio"]["command"][-1]  # --address :9000
+    minio = {k: str(v) for k, v in services["minio"]["environment"].items()}
+    assert (env["AWS_ACCESS_KEY_ID"], env["AWS_SECRET_ACCESS_KEY"]) == (
+        minio["MINIO_ROOT_USER"], minio["MINIO_ROOT_PASSWORD"])
+    assert {k: str(v) for k, v in services[ONE_SHOT]["environment"].items()} == minio
+    # The one-shot service creates exactly the bucket of SIGNMAP_STORAGE_URL, on the same server.
+    script = shlex.split(services[ONE_SHOT]["entrypoint"][-1])
+    assert f"http://minio:{endpoint.port}" in script
+    assert script[-3:] == ["mb", "--ignore-existing", f"store/{store.hostname}"]
+    assert services["minio"]["volumes"] == ["objects:/data"]
+
+
+def test_workers_share_no_volume_with_the_api(compose):
+    services = compose["services"]
+    assert "volumes" not in services["worker"]  # its /data is its own (the image's VOLUME)
     data_dir = _env(services["api"])["SIGNMAP_DATA_DIR"]
-    mounts = {name: services[name]["volumes"] for name in ("api", "worker")}
-    assert mounts["api"] == mounts["worker"] == [f"data:{data_dir}"]
-    assert set(compose["volumes"]) == {"pgdata", "redisdata", "data"}
+    assert services["api"]["volumes"] == [f"api-data:{data_dir}"]
+    assert set(compose["volumes"]) == {"pgdata", "redisdata", "objects", "api-data"}
 
 
 def test_healthchecks_probe_what_the_code_provides(compose):

@@ -10,6 +10,7 @@ import pytest
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
+from app.pipeline.facing import angle_between_deg
 from app.pipeline.geodesy import frame_at
 from app.pipeline.run import process_journey
 from app.pipeline.types import CameraModel, PipelineError
@@ -47,6 +48,9 @@ def test_turn_journey_calibrates_and_maps_signs(turn_journey_bundle, tmp_path):
     assert max(errors.values()) < 1.0, errors
     for sign in result.signs:  # camera-frame positions are in front of the camera
         assert all(o.p_cam[2] > 0 for o in sign.observations)
+    true_facing = {str(s["track_id"]): s["facing_deg"] for s in truth["signs"]}
+    facing_err = [angle_between_deg(s.facing_deg, true_facing[s.track_id]) for s in result.signs]
+    assert np.median(facing_err) <= 15.0 and max(facing_err) <= 45.0, facing_err
     fractions = [f for _, f in stages]
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
 

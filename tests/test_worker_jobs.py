@@ -154,7 +154,7 @@ def test_run_journey_with_a_lost_bundle_fails_with_a_reason(stack):
     row = _journey(stack, journey_id)
     assert (row.status, row.stage) == ("failed", "extract")
     bundle = storage.bundle_path(stack.settings.data_dir, row.bundle_sha256)
-    assert row.error == f"the stored bundle {bundle} is missing on this worker"
+    assert row.error == f"the stored bundle {bundle} is missing on this host"
 
 
 def test_run_journey_on_an_unknown_id_does_nothing(stack):

@@ -1,15 +1,20 @@
-"""Reading and validating an uploaded journey bundle (wire contract, section 1) into a ``Journey``.
+"""Reading and validating an uploaded journey bundle (wire contract, section 1).
+
+``check_bundle`` validates (the API, on the upload request: it writes nothing and associates no
+tracks); ``read_bundle`` validates, extracts the frames and fills empty track ids (the job).
 
 Every violation of the contract becomes a ``BundleError`` whose message tells the uploader what to
-fix; the zip is treated as hostile (``app.pipeline.bundle_zip``). Checks run in the order a user
-would fix them: zip, manifest, frames, images, GPS, detections.
+fix; the zip is treated as hostile (``app.pipeline.bundle_zip``) and the work it may cost is bounded
+by ``BundleLimits`` before it is spent. Checks run cheapest first: the zip's entries and the sizes
+they declare (before anything is unpacked), manifest, the first frame's header, GPS, detections
+(streamed), then each frame in turn: its header (pixel limit before any decoding), then with
+``decode_images`` a full decode. One entry is in memory at a time.
 
 Frames are ``frames/<stem>.jpg|.jpeg|.png`` (extensions are case-sensitive like every name in the
-bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders are
-ignored), ordered by stem, and are extracted to ``extract_dir/frames/``. Every frame's header must
-be a JPEG or PNG of the first frame's size; with ``decode_images`` every frame is also fully
-decoded (raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to the
-stored pixels). GPS comes from ``app.pipeline.gps`` / ``app.pipeline.gps_exif``; detections from
+bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders
+are ignored), ordered by stem. Every frame's header must be a JPEG or PNG of the first frame's size
+(decoding uses raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to
+the stored pixels). GPS comes from ``app.pipeline.gps`` / ``app.pipeline.gps_exif``; detections from
 ``app.pipeline.bundle_detections``, with empty track ids filled by ``app.pipeline.tracks``.
 
 Frames lying too far outside the GPS fixes' time span are dropped from the journey's ends
@@ -21,28 +26,57 @@ from __future__ import annotations
 
 import io
 import logging
+from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import cv2
 import numpy as np
-from PIL import Image
+from PIL import Image, JpegImagePlugin, PngImagePlugin
 
-from app.pipeline.bundle_detections import parse_detections
-from app.pipeline.bundle_manifest import parse_manifest
+from app.pipeline.bundle_detections import DetectionTable, read_detections
+from app.pipeline.bundle_manifest import Manifest, parse_manifest
 from app.pipeline.bundle_zip import BundleLimits, BundleZip, open_bundle
-from app.pipeline.csv_table import decode_text
-from app.pipeline.gps import gps_from_csv, gps_from_gpx
+from app.pipeline.gps import FrameGps, gps_from_csv, gps_from_gpx
 from app.pipeline.gps_exif import gps_from_exif, read_exif_fix
 from app.pipeline.tracks import assign_tracks, sort_detections
 from app.pipeline.types import BundleError, Frame, Journey
 
-__all__ = ["BundleLimits", "read_bundle"]
+__all__ = ["BundleCheck", "BundleLimits", "check_bundle", "read_bundle"]
 
 log = logging.getLogger(__name__)
 
 FRAME_EXTENSIONS = ("jpg", "jpeg", "png")
 MAX_MANIFEST_BYTES = 2**20
 _DECODE_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
+# Pillow's format classes are used directly: they parse the header only, and (unlike Image.open,
+# whose own bomb check fails with a generic error) leave the size limit to us, so the message can
+# name the size.
+_HEADER_PARSERS = ((b"\x89PNG\r\n\x1a\n", PngImagePlugin.PngImageFile),
+                   (b"\xff\xd8\xff", JpegImagePlugin.JpegImageFile))
+
+
+@dataclass(frozen=True)
+class BundleCheck:
+    """What the API needs of a valid bundle (the frames kept after GPS trimming)."""
+
+    camera_id: str
+    vehicle_id: str | None
+    captured_at: str | None
+    n_frames: int
+    n_detections: int
+    warnings: tuple[str, ...]
+
+
+@dataclass
+class _Valid:
+    manifest: Manifest
+    frame_ids: list[str]
+    paths: list[Path]
+    width: int
+    height: int
+    gps: FrameGps
+    detections: DetectionTable | None
 
 
 def _frame_entries(names: list[str]) -> list[tuple[str, str]]:
@@ -71,29 +105,6 @@ def _no_frames_error(names: list[str]) -> BundleError:
     return BundleError(f"bundle has no frames under frames/{hint}")
 
 
-def _image_size(data: bytes, base: str, limits: BundleLimits, decode: bool) -> tuple[int, int]:
-    """(width, height) of a frame, checked to be a JPEG/PNG that decodes."""
-    try:
-        with Image.open(io.BytesIO(data)) as img:
-            fmt, (width, height) = img.format, img.size
-    except Exception:  # Pillow's parsers raise many types on hostile bytes; all mean "unreadable"
-        raise BundleError(f"frame {base} is not a readable image") from None
-    if fmt not in ("JPEG", "PNG"):
-        raise BundleError(f"frame {base} is a {fmt} image; frames must be JPEG or PNG")
-    if width * height > limits.max_frame_pixels:
-        raise BundleError(f"frame {base} is {width}x{height}, more than the limit of "
-                          f"{limits.max_frame_pixels} pixels")
-    if decode:
-        try:
-            pixels = cv2.imdecode(np.frombuffer(data, np.uint8), _DECODE_FLAGS)
-        except cv2.error:
-            pixels = None
-        if pixels is None:
-            raise BundleError(f"frame {base} is not a readable image")
-        height, width = pixels.shape[:2]
-    return width, height
-
-
 def _manifest_error(names: list[str]) -> BundleError:
     nested = next((n for n in names if n.endswith("/manifest.json")), None)
     hint = (f" (found {nested}: zip the bundle's contents, not the folder holding them)"
@@ -101,68 +112,142 @@ def _manifest_error(names: list[str]) -> BundleError:
     return BundleError(f"bundle has no manifest.json at its top level{hint}")
 
 
-def _read_frames(bz: BundleZip, entries: list[tuple[str, str]], frames_dir: Path,
-                 limits: BundleLimits, decode_images: bool, want_exif: bool):
-    frames_dir.mkdir(parents=True, exist_ok=True)
-    size, paths, exif_fixes = None, [], []
+def _header_size(fp: BinaryIO, base: str, limits: BundleLimits) -> tuple[int, int]:
+    """(width, height) from a frame's JPEG/PNG header (only the header is read), within the pixel
+    limit."""
+    unreadable = BundleError(f"frame {base} is not a readable image")
+    magic = fp.read(8)
+    fp.seek(0)
+    parser = next((p for prefix, p in _HEADER_PARSERS if magic.startswith(prefix)), None)
+    try:
+        if parser is None:
+            with Image.open(fp) as img:  # only to name the format in the message
+                fmt = img.format
+            raise BundleError(f"frame {base} is a {fmt} image; frames must be JPEG or PNG")
+        width, height = parser(fp).size
+    except BundleError:
+        raise
+    except Exception:  # Pillow's parsers raise many types on hostile bytes; all mean "unreadable"
+        raise unreadable from None
+    if width * height > limits.max_frame_pixels:
+        raise BundleError(f"frame {base} is {width}x{height}, more than the limit of "
+                          f"{limits.max_frame_pixels} pixels ({limits.max_frame_pixels / 1e6:.1f} "
+                          "megapixels); scale the frames down")
+    if width <= 0 or height <= 0:
+        raise unreadable
+    return width, height
+
+
+def _decoded_size(data: bytes, base: str) -> tuple[int, int]:
+    try:
+        pixels = cv2.imdecode(np.frombuffer(data, np.uint8), _DECODE_FLAGS)
+    except cv2.error:
+        pixels = None
+    if pixels is None:
+        raise BundleError(f"frame {base} is not a readable image")
+    return pixels.shape[1], pixels.shape[0]
+
+
+def _read_frames(bz: BundleZip, entries: list[tuple[str, str]], size: tuple[int, int],
+                 frames_dir: Path | None, limits: BundleLimits, decode: bool, want_exif: bool):
+    """Check every frame, one in memory at a time; write it under ``frames_dir`` if given."""
+    if frames_dir is not None:
+        frames_dir.mkdir(parents=True, exist_ok=True)
+    paths, exif_fixes = [], []
     for _, name in entries:
         base = name.split("/", 1)[1]
         data = bz.read(name)
-        width, height = _image_size(data, base, limits, decode_images)
-        if size is None:
-            size = (width, height)
-        elif (width, height) != size:
+        width, height = _header_size(io.BytesIO(data), base, limits)
+        if decode:
+            width, height = _decoded_size(data, base)
+        if (width, height) != size:
             raise BundleError(f"frame {base} is {width}x{height}, expected {size[0]}x{size[1]} "
                               "like the first frame; all frames must have one size")
         if want_exif:
             exif_fixes.append(read_exif_fix(data))
-        path = frames_dir / base
-        path.write_bytes(data)
-        paths.append(path)
-    return size, paths, exif_fixes
+        if frames_dir is not None:
+            (frames_dir / base).write_bytes(data)
+            paths.append(frames_dir / base)
+    return paths, exif_fixes
+
+
+def _validate(bz: BundleZip, limits: BundleLimits, decode: bool,
+              frames_dir: Path | None) -> _Valid:
+    names = list(bz.files)
+    if "manifest.json" not in bz.files:
+        raise _manifest_error(names)
+    entries = _frame_entries(names)
+    if not entries:
+        raise _no_frames_error(names)
+    if len(entries) > limits.max_frames:
+        raise BundleError(f"bundle has {len(entries)} frames, more than the limit of "
+                          f"{limits.max_frames}")
+    tables = [n for n in ("gps.csv", "gps.gpx", "detections.csv") if n in bz.files]
+    bz.check_sizes({"manifest.json": MAX_MANIFEST_BYTES,
+                    **{n: limits.max_member_bytes for n in tables},
+                    **{name: limits.max_member_bytes for _, name in entries}})
+    manifest = parse_manifest(bz.read("manifest.json", MAX_MANIFEST_BYTES))
+    frame_ids = [stem for stem, _ in entries]
+    with bz.open(entries[0][1]) as fp:
+        width, height = _header_size(fp, entries[0][1].split("/", 1)[1], limits)
+    gps = None
+    if "gps.csv" in bz.files:
+        with bz.open("gps.csv") as fp:
+            gps = gps_from_csv(fp, frame_ids, max_rows=limits.max_gps_rows)
+    elif "gps.gpx" in bz.files:
+        with bz.open("gps.gpx") as fp:
+            gps = gps_from_gpx(fp, frame_ids, max_points=limits.max_gps_rows)
+    detections = None
+    if "detections.csv" in bz.files:
+        with bz.open("detections.csv") as fp:
+            detections = read_detections(fp, frame_ids, width, height,
+                                         max_rows=limits.max_detections,
+                                         max_boxes_per_frame=limits.max_boxes_per_frame)
+    paths, exif_fixes = _read_frames(bz, entries, (width, height), frames_dir, limits, decode,
+                                     want_exif=gps is None)
+    if gps is None:
+        gps = gps_from_exif(exif_fixes, frame_ids)
+    return _Valid(manifest, frame_ids, paths, width, height, gps, detections)
+
+
+def _kept_mask(valid: _Valid) -> np.ndarray:
+    keep = np.zeros(len(valid.frame_ids), bool)
+    keep[valid.gps.kept] = True
+    return keep
+
+
+def check_bundle(zip_path: Path, limits: BundleLimits = BundleLimits(), *,
+                 decode_images: bool = True) -> BundleCheck:
+    """Validate the bundle at ``zip_path`` without writing anything or building tracks."""
+    with open_bundle(Path(zip_path), limits) as bz:
+        valid = _validate(bz, limits, decode_images, frames_dir=None)
+    keep = _kept_mask(valid)
+    n_detections = int(keep[valid.detections.frame].sum()) if valid.detections else 0
+    m = valid.manifest
+    return BundleCheck(m.camera_id, m.vehicle_id, m.captured_at, int(keep.sum()), n_detections,
+                       tuple(valid.gps.warnings))
 
 
 def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = BundleLimits(),
                 decode_images: bool = True) -> Journey:
     """Validate the bundle at ``zip_path``, extract its frames under ``extract_dir/frames/``."""
     with open_bundle(Path(zip_path), limits) as bz:
-        names = list(bz.files)
-        if "manifest.json" not in bz.files:
-            raise _manifest_error(names)
-        manifest = parse_manifest(bz.read("manifest.json", MAX_MANIFEST_BYTES))
-        entries = _frame_entries(names)
-        if not entries:
-            raise _no_frames_error(names)
-        if len(entries) > limits.max_frames:
-            raise BundleError(f"bundle has {len(entries)} frames, more than the limit of "
-                              f"{limits.max_frames}")
-        frame_ids = [stem for stem, _ in entries]
-        want_exif = "gps.csv" not in bz.files and "gps.gpx" not in bz.files
-        (width, height), paths, exif_fixes = _read_frames(
-            bz, entries, Path(extract_dir) / "frames", limits, decode_images, want_exif)
-        if "gps.csv" in bz.files:
-            gps = gps_from_csv(decode_text(bz.read("gps.csv"), "gps.csv"), frame_ids)
-        elif "gps.gpx" in bz.files:
-            gps = gps_from_gpx(bz.read("gps.gpx"), frame_ids)
-        else:
-            gps = gps_from_exif(exif_fixes, frame_ids)
-        kept_ids, kept_paths = frame_ids[gps.kept], paths[gps.kept]
-        detections = []
-        if "detections.csv" in bz.files:
-            text = decode_text(bz.read("detections.csv"), "detections.csv")
-            detections = parse_detections(text, frame_ids, width, height)
-            kept = set(kept_ids)
-            detections = [d for d in detections if d.frame_id in kept]
-            detections = sort_detections(assign_tracks(detections, kept_ids), kept_ids)
-    for path in set(paths) - set(kept_paths):
+        valid = _validate(bz, limits, decode_images, frames_dir=Path(extract_dir) / "frames")
+    gps = valid.gps
+    kept_ids, kept_paths = valid.frame_ids[gps.kept], valid.paths[gps.kept]
+    for path in set(valid.paths) - set(kept_paths):
         path.unlink()  # so the extracted frames/ holds exactly the journey's frames
     for warning in gps.warnings:
         log.warning("%s: %s", Path(zip_path).name, warning)
+    detections = []
+    if valid.detections is not None:
+        detections = valid.detections.to_detections(valid.frame_ids, _kept_mask(valid))
+        detections = sort_detections(assign_tracks(detections, kept_ids), kept_ids)
     frames = [Frame(fid, path, float(t))
               for fid, path, t in zip(kept_ids, kept_paths, gps.timestamp_s)]
-    prior = manifest.camera_prior.camera(width, height) if manifest.camera_prior else None
-    return Journey(camera_id=manifest.camera_id, frames=frames, lat_deg=gps.lat_deg,
+    m, width, height = valid.manifest, valid.width, valid.height
+    prior = m.camera_prior.camera(width, height) if m.camera_prior else None
+    return Journey(camera_id=m.camera_id, frames=frames, lat_deg=gps.lat_deg,
                    lon_deg=gps.lon_deg, alt_m=gps.alt_m, detections=detections,
-                   image_width=width, image_height=height, vehicle_id=manifest.vehicle_id,
-                   captured_at=manifest.captured_at, camera_prior=prior,
-                   warnings=list(gps.warnings))
+                   image_width=width, image_height=height, vehicle_id=m.vehicle_id,
+                   captured_at=m.captured_at, camera_prior=prior, warnings=list(gps.warnings))

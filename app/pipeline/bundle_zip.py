@@ -3,38 +3,32 @@
 Every entry name is checked before anything is read (relative, no ``..`` component, no backslash,
 no drive letter, no NUL, not a symlink, not encrypted, not duplicated). Sizes are bounded twice:
 by the sizes the zip declares, before reading, and by the bytes actually decompressed, while
-reading, because a hostile zip can declare anything. Any failure is a ``BundleError``.
+reading, because a hostile zip can declare anything (``zipfile`` itself never yields more than the
+declared size of an entry, and fails its CRC check when there was more). The declared total is also
+bounded relative to the zip's own size (``BundleLimits.max_unpack_ratio``): real frames are already
+compressed, so a bundle that inflates many times over is padding. Any failure is a ``BundleError``.
 """
 
 from __future__ import annotations
 
+import io
 import re
 import stat
 import struct
 import zipfile
 import zlib
-from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, Mapping
 
+from app.pipeline.config import BundleLimits
 from app.pipeline.types import BundleError
+
+__all__ = ["BundleLimits", "BundleZip", "open_bundle", "unsafe_reason"]
 
 _CHUNK_BYTES = 1 << 20
 _DRIVE = re.compile(r"^[A-Za-z]:")
 _ZIP_ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, struct.error, OSError,
                EOFError, ValueError, NotImplementedError, RuntimeError, IndexError, KeyError)
-
-
-@dataclass(frozen=True)
-class BundleLimits:
-    """Upper bounds on what a bundle may unpack to (declared and actually read)."""
-
-    max_uncompressed_bytes: int = 8 * 2**30
-    max_files: int = 200_000
-    max_frames: int = 100_000
-    # One entry is read into memory to be checked; frames and tables are far smaller than this.
-    max_member_bytes: int = 256 * 2**20
-    # Checked on the image header before decoding: a tiny PNG can declare gigapixels.
-    max_frame_pixels: int = 64 * 2**20
 
 
 def _mb(n_bytes: int) -> str:
@@ -61,7 +55,7 @@ class BundleZip:
 
     Use as a context manager; ``read`` keeps a running count of decompressed bytes."""
 
-    def __init__(self, zf: zipfile.ZipFile, limits: BundleLimits):
+    def __init__(self, zf: zipfile.ZipFile, limits: BundleLimits, zip_bytes: int):
         self._zf = zf
         self._limits = limits
         self._read_bytes = 0
@@ -89,12 +83,34 @@ class BundleZip:
         if declared > limits.max_uncompressed_bytes:
             raise BundleError(f"bundle unpacks to {_mb(declared)}, more than the limit of "
                               f"{_mb(limits.max_uncompressed_bytes)}")
+        if (declared > limits.max_unpack_ratio_floor_bytes
+                and declared > limits.max_unpack_ratio * max(zip_bytes, 1)):
+            raise BundleError(f"bundle unpacks to {_mb(declared)} from a {_mb(zip_bytes)} zip, "
+                              f"more than {limits.max_unpack_ratio:g} times its size; frames are JPEG "
+                              "or PNG and do not shrink in a zip, so this is padding")
 
     def __enter__(self) -> "BundleZip":
         return self
 
     def __exit__(self, *exc) -> None:
         self._zf.close()
+
+    def check_sizes(self, caps: Mapping[str, int]) -> None:
+        """Refuse, before anything is unpacked, an entry declaring more bytes than its cap."""
+        for name, cap in caps.items():
+            size = self.files[name].file_size
+            if size > cap:
+                raise BundleError(f"{name} is {_mb(size)}, more than the limit of {_mb(cap)} for "
+                                  "this file")
+
+    def open(self, name: str) -> BinaryIO:
+        """A buffered stream of the entry (never more than its declared size; close it). Errors
+        while it is read are BundleErrors; callers check the declared size first."""
+        try:
+            stream = self._zf.open(self.files[name])
+        except _ZIP_ERRORS as exc:
+            raise _corrupt(name, exc) from None
+        return io.BufferedReader(_Member(name, stream), 1 << 16)
 
     def read(self, name: str, max_bytes: int | None = None) -> bytes:
         """The entry's bytes, stopping as soon as any size limit is passed."""
@@ -119,9 +135,46 @@ class BundleZip:
         except BundleError:
             raise
         except _ZIP_ERRORS as exc:
-            raise BundleError(f"{name} in the bundle is corrupt or unreadable ({exc}); "
-                              "re-create the zip") from None
+            raise _corrupt(name, exc) from None
         return b"".join(chunks)
+
+
+def _corrupt(name: str, exc: Exception) -> BundleError:
+    return BundleError(f"{name} in the bundle is corrupt or unreadable ({exc}); re-create the zip")
+
+
+class _Member(io.RawIOBase):
+    """An entry's decompressing stream whose zip errors surface as BundleErrors."""
+
+    def __init__(self, name: str, stream: BinaryIO):
+        self._name, self._stream = name, stream
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        try:
+            data = self._stream.read(len(buffer))
+        except _ZIP_ERRORS as exc:
+            raise _corrupt(self._name, exc) from None
+        buffer[:len(data)] = data
+        return len(data)
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        try:
+            return self._stream.seek(offset, whence)
+        except _ZIP_ERRORS as exc:
+            raise _corrupt(self._name, exc) from None
+
+    def tell(self) -> int:
+        return self._stream.tell()
+
+    def close(self) -> None:
+        self._stream.close()
+        super().close()
 
 
 def open_bundle(zip_path: Path, limits: BundleLimits) -> BundleZip:
@@ -132,7 +185,7 @@ def open_bundle(zip_path: Path, limits: BundleLimits) -> BundleZip:
         raise BundleError(f"not a zip file (or a corrupt one): {exc}; upload the journey as a "
                           ".zip bundle") from None
     try:
-        return BundleZip(zf, limits)
+        return BundleZip(zf, limits, zip_path.stat().st_size)
     except BaseException:
         zf.close()
         raise

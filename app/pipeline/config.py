@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 
 class PipelineConfig(BaseModel):
@@ -118,3 +118,34 @@ class PipelineConfig(BaseModel):
     # Self-calibration acceptance.
     min_turn_rotation_deg: float = Field(20.0, description="rotation a window needs to calibrate")
     max_calib_reprojection_px: float = 1.0
+
+
+class BundleLimits(BaseModel):
+    """Upper bounds on what one uploaded bundle may cost to validate and read (environment
+    ``SIGNMAP_BUNDLE__<NAME>``). Each is checked before the work it bounds is spent: declared sizes
+    before anything is unpacked, header sizes before a frame is decoded, row counts while the tables
+    stream. The defaults hold a day of 4K dash-cam driving with a wide margin."""
+
+    model_config = ConfigDict(frozen=True)
+
+    max_uncompressed_bytes: int = Field(
+        8 * 2**30, description="total bytes the bundle's entries may unpack to")
+    # Frames are JPEG/PNG (already compressed) so a real bundle unpacks to about its own size; a
+    # zip of padded or blank data unpacks to hundreds of times its size.
+    max_unpack_ratio: float = Field(
+        20.0, description="a bundle unpacking to more than max_unpack_ratio_floor_bytes may unpack "
+        "to at most this many times its zipped size")
+    max_unpack_ratio_floor_bytes: int = Field(
+        64 * 2**20, description="bundles unpacking to at most this many bytes skip the ratio check")
+    max_files: int = Field(200_000, description="entries in the zip")
+    max_frames: int = Field(100_000, description="frames in one journey")
+    # One entry is held in memory at a time (a frame to decode it): this bounds that memory.
+    max_member_bytes: int = Field(
+        96 * 2**20, description="bytes one entry (frame, gps.csv, detections.csv) may unpack to")
+    # 4096 x 4096: 4K (8.3 MP) and 5K (14.7 MP) dash cams fit; a tiny PNG may declare gigapixels.
+    max_frame_pixels: int = Field(
+        16 * 2**20, description="pixels per frame (width x height), read from the image header")
+    max_detections: int = Field(300_000, description="rows of detections.csv")
+    max_boxes_per_frame: int = Field(200, description="detection boxes in one frame")
+    max_gps_rows: int = Field(
+        1_000_000, description="rows of gps.csv (or track points of gps.gpx)")

@@ -2,7 +2,8 @@
 
 Row numbers in messages are line numbers of the file as a user sees it in an editor or spreadsheet:
 the header is row 1, the first data row is row 2. Blank rows are skipped; extra columns are ignored;
-values are stripped of surrounding whitespace.
+values are stripped of surrounding whitespace. Tables stream: a row is parsed, checked and
+dropped before the next is read, and a row limit stops a long table as soon as it is passed.
 """
 
 from __future__ import annotations
@@ -10,19 +11,10 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
-from typing import Sequence
+import operator
+from typing import BinaryIO, Iterator, Sequence, TextIO
 
 from app.pipeline.types import BundleError
-
-
-@dataclass(frozen=True)
-class TableRow:
-    row: int
-    values: dict[str, str]
-
-    def __getitem__(self, column: str) -> str:
-        return self.values.get(column, "")
 
 
 def decode_text(data: bytes, file_name: str) -> str:
@@ -33,11 +25,24 @@ def decode_text(data: bytes, file_name: str) -> str:
         raise BundleError(f"{file_name} is not UTF-8 text (byte {exc.start})") from None
 
 
-def read_table(text: str, file_name: str, required: Sequence[str],
-               optional: Sequence[str] = ()) -> list[TableRow]:
-    """Rows of a CSV with a mandatory header; an absent optional column reads as empty values."""
+def text_lines(source: str | BinaryIO) -> TextIO:
+    """A table's text as a stream of lines: a str, or a binary stream decoded as it is read (UTF-8
+    with or without a byte-order mark), so a table is never held whole in memory."""
+    if isinstance(source, str):
+        return io.StringIO(source, newline="")
+    return io.TextIOWrapper(source, encoding="utf-8-sig", newline="")
+
+
+def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
+               optional: Sequence[str] = (), *, max_rows: int | None = None
+               ) -> Iterator[tuple[int, tuple[str, ...]]]:
+    """(line number, values) of each row of a CSV with a mandatory header, one at a time: values
+    in the order of ``required`` then ``optional``, stripped, "" where the row is short or an
+    optional column is absent. More than ``max_rows`` data rows is a BundleError, raised as the
+    first row past the limit is read."""
     expected = ",".join([*required, *optional])
-    reader = csv.reader(io.StringIO(text, newline=""))
+    reader = csv.reader(text_lines(source))
+    n_rows = 0
     try:
         header = next(reader, None)
         if header is None:
@@ -51,15 +56,31 @@ def read_table(text: str, file_name: str, required: Sequence[str],
         if missing:
             raise BundleError(f"{file_name} header lacks column(s) {', '.join(missing)}; expected "
                               f"{expected} (got {','.join(columns)[:200]})")
-        rows = []
+        wanted = [*required, *optional]
+        # The last column of that name, as a dict of the header would keep; -1: absent.
+        position = [max((i for i, c in enumerate(columns) if c == w), default=-1) for w in wanted]
+        present = [i for i in position if i >= 0]
+        getter = operator.itemgetter(*position) if len(present) == len(position) > 1 else None
+        needed = max(present) + 1
+        limit = max_rows if max_rows is not None else -1
         for fields in reader:
-            if not any(f.strip() for f in fields):
+            if getter is not None and len(fields) >= needed:
+                values = tuple(map(str.strip, getter(fields)))
+            else:
+                values = tuple(fields[i].strip() if 0 <= i < len(fields) else ""
+                               for i in position)
+            if not any(values) and not any(f.strip() for f in fields):
                 continue
-            values = {c: fields[i].strip() for i, c in enumerate(columns) if c and i < len(fields)}
-            rows.append(TableRow(reader.line_num, values))
+            n_rows += 1
+            if n_rows == limit + 1:
+                raise BundleError(f"{file_name} has more than {max_rows} rows, the limit per "
+                                  "journey; split the journey into shorter ones")
+            yield reader.line_num, values
     except csv.Error as exc:
         raise BundleError(f"{file_name} is not valid CSV near row {reader.line_num}: {exc}") from None
-    return rows
+    except UnicodeDecodeError:
+        raise BundleError(f"{file_name} is not UTF-8 text (near row {reader.line_num + 1})"
+                          ) from None
 
 
 def parse_float(text: str, where: str) -> float:

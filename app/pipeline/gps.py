@@ -37,16 +37,18 @@ consecutive fixes or consecutive frames (a car cannot; GPS noise does not jump t
 
 from __future__ import annotations
 
+import io
 import math
 import xml.etree.ElementTree as ET
+from array import array
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Sequence
+from typing import BinaryIO, Sequence
 
 import numpy as np
 from pyproj import Geod
 
-from app.pipeline.csv_table import parse_float, read_table
+from app.pipeline.csv_table import iter_table, parse_float
 from app.pipeline.types import BundleError
 
 EXTRAPOLATION_MIN_S = 1.5  # extrapolation bound: max(MIN, FIX_INTERVALS x median interval), <= MAX
@@ -68,7 +70,20 @@ class GpsFixes:
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     alt_m: np.ndarray
-    labels: tuple[str, ...]
+    labels: Sequence[str]
+
+
+class NumberedLabels(Sequence[str]):
+    """``prefix`` + number, made when a message needs one (not a string kept per fix)."""
+
+    def __init__(self, prefix: str, numbers: np.ndarray):
+        self._prefix, self._numbers = prefix, numbers
+
+    def __len__(self) -> int:
+        return len(self._numbers)
+
+    def __getitem__(self, i):
+        return f"{self._prefix} {self._numbers[i]}"
 
 
 @dataclass(frozen=True)
@@ -206,38 +221,42 @@ def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
     return frame_gps
 
 
-def gps_from_csv(text: str, frame_ids: Sequence[str]) -> FrameGps:
-    """``gps.csv`` text -> per-frame GPS (see the module docstring for the rules)."""
-    rows = read_table(text, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",))
+def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
+                 max_rows: int | None = None) -> FrameGps:
+    """``gps.csv`` (text, or a binary stream read as it goes) -> per-frame GPS (see the module
+    docstring for the rules); more than ``max_rows`` rows is a BundleError."""
+    rows = iter_table(source, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",),
+                      max_rows=max_rows)
     frame_t: dict[str, tuple[float, int]] = {}
-    t_fix, lat_fix, lon_fix, alt_fix, labels = [], [], [], [], []
-    for r in rows:
-        where = f"gps.csv row {r.row}"
-        t = parse_float(r["timestamp_s"], f"{where}: timestamp_s")
-        frame = r["frame"]
+    # Compact columns: a long table costs 40 bytes per fix, not a Python object per value.
+    t_fix, lat_fix, lon_fix, alt_fix, rows_fix = (array("d"), array("d"), array("d"), array("d"),
+                                                 array("q"))
+    for row, (frame, t_text, lat_text, lon_text, alt_text) in rows:
+        where = f"gps.csv row {row}"
+        t = parse_float(t_text, f"{where}: timestamp_s")
         if frame:
             if frame in frame_t and frame_t[frame][0] != t:
                 raise BundleError(f"{where} gives frame {frame} timestamp {t:g}, but row "
                                   f"{frame_t[frame][1]} gave it {frame_t[frame][0]:g}")
-            frame_t[frame] = (t, r.row)
-        if not r["lat"] and not r["lon"]:
+            frame_t[frame] = (t, row)
+        if not lat_text and not lon_text:
             if not frame:
                 raise BundleError(f"{where} has neither a frame nor a position (lat, lon)")
             continue
-        lat = parse_float(r["lat"], f"{where}: lat")
-        lon = parse_float(r["lon"], f"{where}: lon")
+        lat = parse_float(lat_text, f"{where}: lat")
+        lon = parse_float(lon_text, f"{where}: lon")
         check_position(lat, lon, where)
-        alt = parse_float(r["alt_m"], f"{where}: alt_m") if r["alt_m"] else math.nan
+        alt = parse_float(alt_text, f"{where}: alt_m") if alt_text else math.nan
         t_fix.append(t), lat_fix.append(lat), lon_fix.append(lon), alt_fix.append(alt)
-        labels.append(f"row {r.row}")
+        rows_fix.append(row)
     if not t_fix:
         raise BundleError("gps.csv has no GPS fixes (rows with lat and lon)")
     for frame in frame_ids:
         if frame not in frame_t:
             raise BundleError(f"no GPS timestamp for frame {frame}: gps.csv needs a row with "
                               f"frame={frame} and its timestamp_s")
-    fixes = GpsFixes(np.array(t_fix), np.array(lat_fix), np.array(lon_fix), np.array(alt_fix),
-                     tuple(labels))
+    fixes = GpsFixes(*(np.frombuffer(a, np.float64) for a in (t_fix, lat_fix, lon_fix, alt_fix)),
+                     NumberedLabels("row", np.frombuffer(rows_fix, np.int64)))
     frame_timestamp_s = np.array([frame_t[f][0] for f in frame_ids])
     return _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)
 
@@ -256,34 +275,55 @@ def _local(tag: str) -> str:
     return tag.rsplit("}", 1)[-1]
 
 
-def parse_gpx(data: bytes) -> GpsFixes:
-    """Track points of a GPX 1.0/1.1 document; ``timestamp_s`` relative to the first point."""
+def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> GpsFixes:
+    """Track points of a GPX 1.0/1.1 document (bytes, or a binary stream parsed as it is read);
+    ``timestamp_s`` relative to the first point. Each point is dropped from the tree once read, so
+    memory holds the point's numbers only; more than ``max_points`` is a BundleError."""
+    t_s, lats, lons, alts = array("d"), array("d"), array("d"), array("d")
+    t0, open_elements = None, []
     try:
-        root = ET.fromstring(data)
+        events = ET.iterparse(io.BytesIO(source) if isinstance(source, bytes) else source,
+                              events=("start", "end"))
+        for event, elem in events:
+            if event == "start":
+                open_elements.append(elem)
+                continue
+            open_elements.pop()
+            if _local(elem.tag) != "trkpt":
+                continue
+            n = len(t_s) + 1
+            if max_points is not None and n > max_points:
+                raise BundleError(f"gps.gpx has more than {max_points} track points, the limit "
+                                  "per journey; split the journey into shorter ones")
+            where = f"gps.gpx track point {n}"
+            lat = parse_float(elem.get("lat", ""), f"{where}: lat")
+            lon = parse_float(elem.get("lon", ""), f"{where}: lon")
+            check_position(lat, lon, where)
+            children = {_local(c.tag): (c.text or "").strip() for c in elem}
+            if not children.get("time"):
+                raise BundleError(f"{where} has no <time>; every track point needs one")
+            when = parse_iso_time(children["time"], f"{where}: time")
+            t0 = t0 or when
+            t_s.append((when - t0).total_seconds())
+            alts.append(parse_float(children["ele"], f"{where}: ele") if children.get("ele")
+                        else math.nan)
+            lats.append(lat), lons.append(lon)
+            elem.clear()
+            if open_elements:
+                del open_elements[-1][:]  # the parent's finished points (later ones stay referenced)
     except ET.ParseError as exc:
         raise BundleError(f"gps.gpx is not valid XML: {exc}") from None
-    times, lats, lons, alts, labels = [], [], [], [], []
-    for n, pt in enumerate((e for e in root.iter() if _local(e.tag) == "trkpt"), start=1):
-        where = f"gps.gpx track point {n}"
-        lat = parse_float(pt.get("lat", ""), f"{where}: lat")
-        lon = parse_float(pt.get("lon", ""), f"{where}: lon")
-        check_position(lat, lon, where)
-        children = {_local(c.tag): (c.text or "").strip() for c in pt}
-        if not children.get("time"):
-            raise BundleError(f"{where} has no <time>; every track point needs one")
-        times.append(parse_iso_time(children["time"], f"{where}: time"))
-        alts.append(parse_float(children["ele"], f"{where}: ele") if children.get("ele")
-                    else math.nan)
-        lats.append(lat), lons.append(lon), labels.append(f"track point {n}")
-    if not times:
+    if not t_s:
         raise BundleError("gps.gpx has no track points (<trkpt lat=.. lon=..><time>..</time>)")
-    t_s = np.array([(t - times[0]).total_seconds() for t in times])
-    return GpsFixes(t_s, np.array(lats), np.array(lons), np.array(alts), tuple(labels))
+    return GpsFixes(*(np.frombuffer(a, np.float64) for a in (t_s, lats, lons, alts)),
+                    NumberedLabels("track point", np.arange(1, len(t_s) + 1)))
 
 
-def gps_from_gpx(data: bytes, frame_ids: Sequence[str]) -> FrameGps:
-    """``gps.gpx`` bytes -> per-frame GPS (see the module docstring for how frames get times)."""
-    fixes = parse_gpx(data)
+def gps_from_gpx(source: bytes | BinaryIO, frame_ids: Sequence[str], *,
+                 max_points: int | None = None) -> FrameGps:
+    """``gps.gpx`` (bytes or a binary stream) -> per-frame GPS (see the module docstring for how
+    frames get times)."""
+    fixes = parse_gpx(source, max_points=max_points)
     t_fix = fixes.timestamp_s
     if len(t_fix) == len(frame_ids):
         frame_timestamp_s = t_fix.copy()

@@ -32,7 +32,7 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                         "rotation_deg": cal.rotation_deg, "windows": cal.windows},
         "timings_s": result.timings_s,
         "signs": [{"track_id": s.track_id, "class": s.cls, "lat": s.lat_deg, "lon": s.lon_deg,
-                   "alt_m": s.alt_m, "std_m": s.std_m, "reprojection_rms_px": s.reprojection_rms_px,
+                   "alt_m": s.alt_m, "std_m": s.std_m, "facing_deg": s.facing_deg, "reprojection_rms_px": s.reprojection_rms_px,
                    "n_frames": len(s.observations)} for s in result.signs],
         "rejected": [{"track_id": r.track_id, "class": r.cls, "reason": r.reason}
                      for r in result.rejected],

@@ -18,6 +18,7 @@ import numpy as np
 from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
 from app.pipeline.config import PipelineConfig
 from app.pipeline.sfm_stage import StageSfm
+from app.pipeline.facing import facing_deg
 from app.pipeline.triangulation import (TriangulationError, largest_std_m, triangulate,
                                         undistort_pixels)
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
@@ -230,6 +231,7 @@ def _triangulate_all(tracks, aligned, xyz_gps, camera: CameraModel, journey: Jou
             track_id, cls, xyz, float(lat[0]), float(lon[0]),
             float(alt[0]) if journey.has_altitude else None, std_m, rms_px,
             [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, p_cam)],
+            facing_deg(xyz, T[:, :3, 3]),
         ))
     return signs, rejected
 

@@ -46,7 +46,7 @@ _GATED = 1e9
 class _Track:
     track_id: str
     cls: str
-    # (frame index, centre x, centre y, log size, aspect w/h), oldest first; the last two are used.
+    # (frame index, centre x, centre y, log size, aspect w/h) of its last two detections.
     history: list[tuple[int, float, float, float, float]] = field(default_factory=list)
 
     def predict(self, frame_index: int) -> tuple[float, float, float, float]:
@@ -59,39 +59,60 @@ class _Track:
         return x1 + (x1 - x0) * steps, y1 + (y1 - y0) * steps, s1 + (s1 - s0) * steps, a1
 
 
-def _box_state(det: Detection) -> tuple[float, float, float, float]:
-    w, h = det.x2 - det.x1, det.y2 - det.y1
-    cx, cy = det.centre_px
-    return cx, cy, 0.5 * float(np.log(w * h)), w / h
+def _states(dets: Sequence[Detection]) -> np.ndarray:
+    """(N, 4) centre x, centre y, log size, aspect w/h of the boxes."""
+    box = np.array([(d.x1, d.y1, d.x2, d.y2) for d in dets], dtype=float).reshape(-1, 4)
+    w, h = box[:, 2] - box[:, 0], box[:, 3] - box[:, 1]
+    return np.column_stack([0.5 * (box[:, 0] + box[:, 2]), 0.5 * (box[:, 1] + box[:, 3]),
+                            0.5 * np.log(w * h), w / h])
 
 
-def _corners(cx: float, cy: float, log_size: float, aspect: float) -> np.ndarray:
-    size = np.exp(log_size)
-    w, h = size * np.sqrt(aspect), size / np.sqrt(aspect)
-    return np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2])
+def _corners(state: np.ndarray) -> np.ndarray:
+    size, root = np.exp(state[..., 2]), np.sqrt(state[..., 3])
+    half_w, half_h = size * root / 2, size / root / 2
+    cx, cy = state[..., 0], state[..., 1]
+    return np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=-1)
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of every box of ``a`` (T, 4) with every box of ``b`` (D, 4) -> (T, D)."""
+    a, b = a[:, None, :], b[None, :, :]
+    iw = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
+    ih = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0, None)
     inter = iw * ih
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
+    union = ((a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
+             + (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1]) - inter)
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
 
-def _cost(track: _Track, det: Detection, frame_index: int, max_centre_distance: float,
-          max_first_distance: float, max_scale_ratio: float) -> float:
-    if det.cls != track.cls:
-        return _GATED
-    px, py, ps, pa = track.predict(frame_index)
-    dx, dy, ds, da = _box_state(det)
-    distance = float(np.hypot(dx - px, dy - py)) / np.exp(ps)
-    log_ratio = abs(ds - ps)
-    gate = max_centre_distance if len(track.history) > 1 else max_first_distance
-    if distance > gate or log_ratio > np.log(max_scale_ratio):
-        return _GATED
-    iou = _iou(_corners(px, py, ps, pa), _corners(dx, dy, ds, da))
-    return distance + log_ratio + (1.0 - iou)
+def _cost_matrix(tracks: Sequence[_Track], track_cls: np.ndarray, det_state: np.ndarray,
+                 det_cls: np.ndarray, frame_index: int, max_centre_distance: float,
+                 max_first_distance: float, max_scale_ratio: float) -> np.ndarray:
+    """(T, D) association costs, ``_GATED`` where a pair may not match; numpy throughout, so a
+    frame of a thousand boxes costs milliseconds."""
+    pred = np.array([t.predict(frame_index) for t in tracks], dtype=float).reshape(-1, 4)
+    distance = (np.hypot(det_state[None, :, 0] - pred[:, None, 0],
+                         det_state[None, :, 1] - pred[:, None, 1]) / np.exp(pred[:, 2])[:, None])
+    log_ratio = np.abs(det_state[None, :, 2] - pred[:, None, 2])
+    gate = np.where([len(t.history) > 1 for t in tracks], max_centre_distance,
+                    max_first_distance)[:, None]
+    feasible = ((track_cls[:, None] == det_cls[None, :]) & (distance <= gate)
+                & (log_ratio <= np.log(max_scale_ratio)))
+    cost = distance + log_ratio + (1.0 - _iou(_corners(pred), _corners(det_state)))
+    return np.where(feasible, cost, _GATED)
+
+
+def _match(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Optimal (row, col) pairs among the feasible ones. Only rows and columns with a feasible pair
+    enter the Hungarian solver: the same optimum (it first maximises the feasible matches, as
+    every forced gated pair costs the same), on a far smaller matrix."""
+    feasible = cost < _GATED
+    rows, cols = np.flatnonzero(feasible.any(axis=1)), np.flatnonzero(feasible.any(axis=0))
+    if not len(rows):
+        return []
+    sub = cost[np.ix_(rows, cols)]
+    return [(int(rows[r]), int(cols[c])) for r, c in zip(*linear_sum_assignment(sub))
+            if sub[r, c] < _GATED]
 
 
 def assign_tracks(detections: list[Detection], frame_ids: list[str], *, max_gap_frames: int = 2,
@@ -106,20 +127,21 @@ def assign_tracks(detections: list[Detection], frame_ids: list[str], *, max_gap_
     for k, det in enumerate(detections):
         if not det.track_id:
             by_frame[frame_index[det.frame_id]].append(k)
+    class_code: dict[str, int] = {}
     used_ids = {d.track_id for d in detections if d.track_id}
     next_auto = 0
-    tracks: list[_Track] = []
+    alive: list[_Track] = []  # a track once dead never revives, so the list stays short
     assigned: dict[int, str] = {}
     for f in sorted(by_frame):
-        alive = [t for t in tracks if f - t.history[-1][0] <= max_gap_frames + 1]
+        alive = [t for t in alive if f - t.history[-1][0] <= max_gap_frames + 1]
         dets = by_frame[f]
-        cost = np.array([[_cost(t, detections[k], f, max_centre_distance, max_first_distance,
-                                max_scale_ratio)
-                          for k in dets] for t in alive]).reshape(len(alive), len(dets))
-        matched: dict[int, _Track] = {}
-        for row, col in zip(*linear_sum_assignment(cost)):
-            if cost[row, col] < _GATED:
-                matched[col] = alive[row]
+        state = _states([detections[k] for k in dets])
+        det_cls = np.array([class_code.setdefault(detections[k].cls, len(class_code))
+                            for k in dets])
+        track_cls = np.array([class_code[t.cls] for t in alive], dtype=int)
+        cost = _cost_matrix(alive, track_cls, state, det_cls, f, max_centre_distance,
+                            max_first_distance, max_scale_ratio)
+        matched = {col: alive[row] for row, col in _match(cost)}
         for col, k in enumerate(dets):
             track = matched.get(col)
             if track is None:
@@ -127,8 +149,8 @@ def assign_tracks(detections: list[Detection], frame_ids: list[str], *, max_gap_
                     next_auto += 1
                 track = _Track(f"auto-{next_auto}", detections[k].cls)
                 used_ids.add(track.track_id)
-                tracks.append(track)
-            track.history.append((f, *_box_state(detections[k])))
+                alive.append(track)
+            track.history[:] = [*track.history[-1:], (f, *map(float, state[col]))]
             assigned[k] = track.track_id
     return [dataclasses.replace(d, track_id=assigned[k]) if k in assigned else d
             for k, d in enumerate(detections)]

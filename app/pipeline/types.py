@@ -159,6 +159,7 @@ class Sign:
     std_m: float  # 1-sigma position uncertainty (sqrt of the largest covariance eigenvalue)
     reprojection_rms_px: float
     observations: list[SignObservation]
+    facing_deg: float | None = None  # compass bearing of the face (app.pipeline.facing)
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import shutil
 import time
 import uuid
 from typing import Annotated, Any
@@ -11,11 +10,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
-from sqlalchemy import delete, func, select
+from sqlalchemy import delete, select
 from sqlalchemy.exc import IntegrityError
 
 from app.geojson import feature_collection
-from app.pipeline.bundle import read_bundle
+from app.pipeline.bundle import check_bundle
 from app.pipeline.types import BundleError
 from app.service import queries, storage
 from app.service.auth import Principal, require
@@ -64,7 +63,8 @@ def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
                413: {"model": ErrorOut, "description": "over SIGNMAP_MAX_UPLOAD_MB"},
                415: {"model": ErrorOut, "description": "not multipart/form-data"},
                422: {"model": ErrorOut, "description": "the bundle breaks the wire contract"},
-               503: {"model": ErrorOut, "description": "the job queue is unreachable"},
+               503: {"model": ErrorOut,
+                     "description": "the job queue or the bundle store is unreachable"},
                **_AUTH_ERRORS},
     # The body is parsed as a stream (not by FastAPI), so its schema is declared here for /docs.
     openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
@@ -81,24 +81,26 @@ async def upload_journey(request: Request,
         if existing is not None:
             return existing
         t0 = time.perf_counter()
-        extract_dir = incoming.with_suffix(".d")
-        try:
-            journey = await run_in_threadpool(read_bundle, incoming, extract_dir,
-                                              decode_images=True)
+        try:  # checks the contract only, writing nothing; the job extracts and builds tracks
+            journey = await run_in_threadpool(check_bundle, incoming, settings.bundle)
         except BundleError as exc:
             log.info("upload by key %s rejected: %s", who.key_id, exc.reason)
             raise HTTPException(422, exc.reason) from exc
-        finally:
-            shutil.rmtree(extract_dir, ignore_errors=True)
         validate_s = time.perf_counter() - t0
-        path, new_file = storage.keep_bundle(settings.data_dir, incoming, received.sha256)
+        try:
+            new_file = await run_in_threadpool(request.app.state.store.put, received.sha256,
+                                               incoming)
+        except storage.StorageUnavailable as exc:
+            log.error("upload by key %s not stored: %s", who.key_id, exc)
+            raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                                "the bundle store is unreachable; try again later") from exc
     finally:
         incoming.unlink(missing_ok=True)
 
     row = Journey(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
                   vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
                   bundle_sha256=received.sha256, bundle_bytes=received.n_bytes, status="queued",
-                  progress=0.0, n_frames=len(journey.frames), attempts=0)
+                  progress=0.0, n_frames=journey.n_frames, attempts=0)
     try:
         with session_scope(_url(request)) as session:
             session.add(row)
@@ -111,7 +113,7 @@ async def upload_journey(request: Request,
         request.app.state.queue.submit(row.id)
     except Exception as exc:
         log.exception("journey %s: could not be queued; upload undone", row.id)
-        _undo(request, row, path if new_file else None)
+        _undo(request, row, new_file)
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
                             "the job queue is unreachable; try again later") from exc
     log.info("journey %s queued: %d frames, camera %s, %d bytes, key %s, validated in %.1f s",
@@ -137,13 +139,11 @@ def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | N
     return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
 
 
-def _undo(request: Request, row: Journey, new_file) -> None:
+def _undo(request: Request, row: Journey, new_file: bool) -> None:
     with session_scope(_url(request)) as session:
         session.execute(delete(Journey).where(Journey.id == row.id))
-        others = session.scalar(select(func.count()).select_from(Journey)
-                                .where(Journey.bundle_sha256 == row.bundle_sha256))
-    if new_file is not None and not others:
-        new_file.unlink(missing_ok=True)
+    if new_file:
+        storage.release_bundle(_url(request), request.app.state.store, row.bundle_sha256)
 
 
 @router.get("/journeys", response_model=list[JourneyOut], summary="The caller's journeys",

@@ -13,6 +13,7 @@ from app.service.api import router
 from app.service.map_api import router as map_router
 from app.service.db import session_scope
 from app.service.queue import make_queue
+from app.service.storage import make_store
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="Signmap", version="1", description=DESCRIPTION, lifespan=lifespan)
     app.state.settings = settings
     app.state.queue = make_queue(settings)
+    app.state.store = make_store(settings)
     app.include_router(router)
     app.include_router(map_router)
     mount_admin(app)

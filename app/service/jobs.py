@@ -74,11 +74,13 @@ def run_journey(journey_id: str, settings: Settings) -> None:
 
     stage = "extract"
     try:
-        bundle = storage.bundle_path(settings.data_dir, sha256)
-        if not bundle.is_file():
-            # The API and every worker must share data_dir (docs/service.md).
-            raise PipelineError(stage, f"the stored bundle {bundle} is missing on this worker")
-        journey = read_bundle(bundle, workdir / "bundle", decode_images=False)
+        try:
+            # Into this worker's own scratch (an object store) or read in place (data_dir/bundles).
+            bundle = storage.make_store(settings).fetch(sha256, workdir)
+        except storage.StorageError as exc:
+            raise PipelineError(stage, str(exc)) from exc
+        journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle,
+                              decode_images=False)
         progress("extract", 0.0, f"{len(journey.frames)} frames")
         stage = "pipeline"
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",

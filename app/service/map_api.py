@@ -12,7 +12,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.geojson import sign_feature
-from app.service import fusion_job
+from app.service import fusion_job, storage
 from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
@@ -187,7 +187,8 @@ def get_map_sign(request: Request, sign_id: str,
 @router.delete("/journeys/{journey_id}", status_code=status.HTTP_204_NO_CONTENT,
                summary="Delete a journey (admin)",
                description="Removes the journey, its signs and coverage, and re-fuses the map "
-                           "around it. A running journey answers 409.",
+                           "around it; its stored bundle goes too unless another journey was "
+                           "uploaded with the same bytes. A running journey answers 409.",
                responses={404: {"model": ErrorOut, "description": "no such journey"},
                           409: {"model": ErrorOut, "description": "the journey is running"},
                           **_AUTH})
@@ -196,7 +197,9 @@ def delete_journey(request: Request, journey_id: str,
     with session_scope(_url(request)) as session:
         row = session.get(Journey, journey_id)
         running = row is not None and row.status == "running"
+        sha256 = row.bundle_sha256 if row is not None else None
     if running:
         raise HTTPException(status.HTTP_409_CONFLICT, f"journey {journey_id} is running")
     if not fusion_job.delete_journey(_url(request), journey_id, request.app.state.settings):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
+    storage.release_bundle(_url(request), request.app.state.store, sha256)

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import piexif
 
+from app.pipeline.facing import bearing_deg
 from app.pipeline.types import Detection
 
 if TYPE_CHECKING:
@@ -147,6 +148,7 @@ def truth(j: "SynthJourney") -> dict:
                    for fid, t, s, T in zip(j.frame_ids, j.timestamps_s, j.s_m, j.T_world_cam)],
         "signs": [{"id": s.sign_id, "track_id": tid, "class": s.cls, "shape": s.shape,
                    "size_m": s.size_m, "xyz_enu": [float(x) for x in s.centre_enu],
+                   "facing_deg": bearing_deg(s.normal_enu),
                    "lat": float(la), "lon": float(lo), "alt_m": float(al),
                    "observations": observations[k]}
                   for k, (s, tid, la, lo, al)

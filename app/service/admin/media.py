@@ -1,5 +1,7 @@
 """Things the journey page reads out of a stored bundle: the GPS track and sign crops. Both are
-cached under ``data_dir/cache/admin/`` (bundles are immutable, content-addressed files)."""
+cached under ``data_dir/cache/admin/`` (bundles are immutable, content-addressed files); a bundle
+in an object store is fetched into ``cache/admin/bundles/`` once for all the crops of its page, and
+only the few most recently used are kept there."""
 
 from __future__ import annotations
 
@@ -15,14 +17,26 @@ import numpy as np
 from app.pipeline.bundle import FRAME_EXTENSIONS, read_bundle
 from app.pipeline.bundle_zip import BundleLimits, open_bundle
 from app.pipeline.geodesy import frame_at
+from app.service.storage import BundleStore
 
 CROP_MARGIN = 1.0  # context around the box, as a fraction of its size on each side
 CROP_MIN_PX = 96
 BOX_BGR = (0, 0, 255)
+KEEP_FETCHED = 4  # bundles fetched from an object store kept on this host for their crops
 
 
 def cache_dir(data_dir: Path) -> Path:
     return data_dir / "cache" / "admin"
+
+
+def _bundle(data_dir: Path, store: BundleStore, sha256: str) -> Path:
+    fetched = cache_dir(data_dir) / "bundles"
+    path = store.fetch(sha256, fetched)
+    if fetched.is_dir():
+        by_use = sorted(fetched.glob("*.zip"), key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in by_use[KEEP_FETCHED:]:
+            old.unlink(missing_ok=True)
+    return path
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -33,14 +47,14 @@ def _write_atomic(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def gps_track(data_dir: Path, bundle: Path, sha256: str) -> list[list[float]]:
+def gps_track(data_dir: Path, store: BundleStore, sha256: str) -> list[list[float]]:
     """[[lat, lon], ...] per frame, as the pipeline reads it (csv, gpx or EXIF)."""
     cached = cache_dir(data_dir) / f"{sha256}.gps.json"
     if cached.exists():
         return json.loads(cached.read_text())
     scratch = Path(tempfile.mkdtemp(dir=data_dir))
     try:
-        journey = read_bundle(bundle, scratch, decode_images=False)
+        journey = read_bundle(_bundle(data_dir, store, sha256), scratch, decode_images=False)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     track = [[float(a), float(o)] for a, o in zip(journey.lat_deg, journey.lon_deg)]
@@ -77,14 +91,14 @@ def crop_box(image_bgr: np.ndarray, box: list[float] | None) -> np.ndarray:
     return out[top:bottom, left:right]
 
 
-def crop_png(data_dir: Path, bundle: Path, sha256: str, frame_id: str,
+def crop_png(data_dir: Path, store: BundleStore, sha256: str, frame_id: str,
              box: list[float] | None) -> bytes | None:
     """PNG of ``frame_id``'s crop around ``box``; None when the bundle has no such frame."""
     tag = "full" if box is None else "_".join(f"{v:g}" for v in box)
     cached = cache_dir(data_dir) / sha256 / f"{frame_id}_{tag}.png"
     if cached.exists():
         return cached.read_bytes()
-    with open_bundle(bundle, BundleLimits()) as bz:
+    with open_bundle(_bundle(data_dir, store, sha256), BundleLimits()) as bz:
         names = [f"frames/{frame_id}.{ext}" for ext in FRAME_EXTENSIONS]
         name = next((n for n in names if n in bz.files), None)
         if name is None:

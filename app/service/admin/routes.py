@@ -151,9 +151,7 @@ def journey(request: Request, journey_id: str, _key: SessionKey) -> HTMLResponse
             coverage.poses, coverage.origin_lat_deg, coverage.origin_lon_deg,
             coverage.origin_alt_m)
     try:
-        track = media.gps_track(settings.data_dir,
-                                storage.bundle_path(settings.data_dir, row.bundle_sha256),
-                                row.bundle_sha256)
+        track = media.gps_track(settings.data_dir, request.app.state.store, row.bundle_sha256)
     except Exception as exc:  # noqa: BLE001 - a missing/unreadable bundle must not hide the page
         log.warning("journey %s: no GPS track for the dashboard: %s", journey_id, exc)
         track = []
@@ -172,9 +170,13 @@ def crop(request: Request, journey_id: str, track: str, frame: str, _key: Sessio
     obs = next((o for o in (sign.observations if sign else []) if o.get("frame") == frame), None)
     if obs is None:
         raise HTTPException(404, "no such observation")
-    png = media.crop_png(settings.data_dir, storage.bundle_path(settings.data_dir,
-                                                                row.bundle_sha256),
-                         row.bundle_sha256, frame, obs.get("box"))
+    try:
+        png = media.crop_png(settings.data_dir, request.app.state.store, row.bundle_sha256, frame,
+                             obs.get("box"))
+    except storage.BundleMissing as exc:
+        raise HTTPException(404, str(exc)) from exc
+    except storage.StorageUnavailable as exc:
+        raise HTTPException(503, str(exc)) from exc
     if png is None:
         raise HTTPException(404, "frame not in the bundle")
     return Response(png, media_type="image/png",
