@@ -70,6 +70,13 @@ class Settings(BaseSettings):
         1000, ge=1, description="a tile with more signs than this is clustered at any zoom")
     tile_cluster_grid: int = Field(
         16, ge=1, le=256, description="a clustered tile has at most this many cells per side")
+    tile_cache_max_zoom: int = Field(
+        11, ge=-1, description="tiles at this zoom and below are kept in the API process until "
+                               "the map changes; -1 = none")
+    tile_cache_size: int = Field(4096, ge=1, description="tiles the cache holds at most")
+    tile_cache_ttl_s: float = Field(
+        300.0, gt=0, description="a cached tile is recomputed after this even if the map seems "
+                                 "unchanged (a lagging clock on a worker host)")
 
     @field_validator("storage_url")
     @classmethod

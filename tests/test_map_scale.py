@@ -110,6 +110,17 @@ def test_tiles_hold_each_sign_at_high_zoom_and_clusters_at_low_zoom(stack, place
         assert client.get(path).status_code == 401
 
 
+def test_a_cached_low_zoom_tile_follows_the_map(stack, place):
+    z10, signs = place
+    assert z10.z <= stack.settings.tile_cache_max_zoom
+    cls, lat, lon, _ = signs[min(signs)]
+    with stack.client() as client:
+        assert [f["properties"]["count"] for f in get_tile(client, z10)] == [5]
+        assert [f["properties"]["count"] for f in get_tile(client, z10)] == [5]  # from the cache
+        add_sign(stack.url, min(signs) + "-new", cls, lat, lon)  # a fusion change: updated now
+        assert [f["properties"]["count"] for f in get_tile(client, z10)] == [6]
+
+
 def test_a_tile_with_too_many_signs_is_clustered_at_any_zoom(stack, place):
     z10, signs = place
     crowded = [v for k, v in signs.items() if k[-1] in "abc"]

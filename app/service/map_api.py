@@ -17,7 +17,8 @@ from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
 from app.service.map_read import heavy_read, parse_cursor, signs_page_json
-from app.service.map_tiles import MEDIA_TYPE, Tile, encode, tile_features
+from app.service.map_tiles import (MEDIA_TYPE, Tile, TileCache, encode, map_version,
+                                   tile_features)
 from app.service.queries import BBox
 from app.service.schemas import ErrorOut, PointGeometry
 
@@ -115,7 +116,7 @@ async def get_map_signs(request: Request, who: Annotated[Principal, Depends(requ
                         "points with `id`, `class`, `state` and `count` (1 for a sign); at low "
                         "zoom, and in a tile with too many signs, a point stands for a cluster: "
                         "`count` signs, `id` the smallest of theirs, `class`/`state` only when "
-                        "all members share one.",
+                        "all members share one. Low-zoom tiles are cached until the map changes.",
             responses={200: {"content": {MEDIA_TYPE: {}}, "description": "the tile"},
                        400: {"model": ErrorOut, "description": "z, x or y out of range"},
                        **_AUTH})
@@ -127,14 +128,30 @@ async def get_tile(request: Request, z: int, x: int, y: int,
     except ValueError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
 
+    cache = _tile_cache(request) if z <= settings.tile_cache_max_zoom else None
+
     def read() -> bytes:
         with session_scope(_url(request)) as session:
-            features = tile_features(session, tile, points_min_zoom=settings.tile_points_min_zoom,
-                                     max_points=settings.tile_max_points,
-                                     grid=settings.tile_cluster_grid)
-        return encode(features)
+            version = map_version(session) if cache is not None else None
+            data = cache.get((z, x, y), version) if cache is not None else None
+            if data is None:
+                data = encode(tile_features(
+                    session, tile, points_min_zoom=settings.tile_points_min_zoom,
+                    max_points=settings.tile_max_points, grid=settings.tile_cluster_grid))
+                if cache is not None:
+                    cache.put((z, x, y), version, data)
+        return data
 
     return Response(await heavy_read(request, read), media_type=MEDIA_TYPE)
+
+
+def _tile_cache(request: Request) -> TileCache:
+    cache = getattr(request.app.state, "tile_cache", None)
+    if cache is None:
+        settings = request.app.state.settings
+        cache = request.app.state.tile_cache = TileCache(settings.tile_cache_size,
+                                                         settings.tile_cache_ttl_s)
+    return cache
 
 
 @router.get("/signs/changes", response_model=MapChanges,

@@ -9,6 +9,9 @@ there is no ``facing``."""
 from __future__ import annotations
 
 import math
+import threading
+import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -116,3 +119,34 @@ def encode(features: list[dict[str, Any]]) -> bytes:
 def decode(data: bytes) -> dict[str, Any]:
     """The tile as the encoder's own decoder reads it (y down, as encoded)."""
     return mapbox_vector_tile.decode(data, default_options={"y_coord_down": True})
+
+
+class TileCache:
+    """Encoded low-zoom tiles (the costly ones: a z6 tile aggregates a country's signs), kept
+    while the map is unchanged: every fusion change stamps ``updated_at``, so the newest stamp is
+    the map's version. ``ttl_s`` bounds what a host whose clock lags could leave stale."""
+
+    def __init__(self, size: int, ttl_s: float):
+        self.size, self.ttl_s = size, ttl_s
+        self._tiles: OrderedDict[tuple, tuple[Any, float, bytes]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple, version: Any) -> bytes | None:
+        with self._lock:
+            held = self._tiles.get(key)
+            if held is None or held[0] != version or time.monotonic() - held[1] > self.ttl_s:
+                return None
+            self._tiles.move_to_end(key)
+            return held[2]
+
+    def put(self, key: tuple, version: Any, data: bytes) -> None:
+        with self._lock:
+            self._tiles[key] = (version, time.monotonic(), data)
+            self._tiles.move_to_end(key)
+            while len(self._tiles) > self.size:
+                self._tiles.popitem(last=False)
+
+
+def map_version(session: Session) -> Any:
+    """The newest change of the map (index ix_map_signs_updated_at: one index probe)."""
+    return session.connection().execute(select(func.max(MapSign.updated_at))).scalar()
