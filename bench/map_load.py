@@ -217,8 +217,10 @@ def run_scenarios(base: str, key: str, m: SyntheticMap, concurrency: int, n_requ
                                   ("low-tiles", range(6, 12), "tiles z6-11")):
         if scenario not in scenarios:
             continue
-        paths = iter(tile_paths(m, zooms, n_requests))
-        timed = one(name, lambda w, body, paths=paths: next(paths))
+        paths = tile_paths(m, zooms, n_requests)
+        timed = one(name, lambda w, body, it=iter(paths): next(it))
+        timed.note = (f"{len(set(paths))} distinct tiles; the server caches those at z <= 11 "
+                      "(SIGNMAP_TILE_CACHE_MAX_ZOOM) after their first request")
         results[-1:-1] = _by_zoom(timed)  # before its /health row
     return results
 
