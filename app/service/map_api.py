@@ -16,7 +16,7 @@ from app.service import fusion_job, storage
 from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
-from app.service.map_read import heavy_read, parse_cursor, signs_page_json
+from app.service.map_read import heavy_read, parse_cursor, read_connection, signs_page_json
 from app.service.map_tiles import (MEDIA_TYPE, Tile, TileCache, encode, map_version,
                                    tile_features)
 from app.service.queries import BBox
@@ -102,8 +102,8 @@ async def get_map_signs(request: Request, who: Annotated[Principal, Depends(requ
     since = None if since is None else _aware(since)
 
     def read() -> bytes:
-        with session_scope(_url(request)) as session:
-            return signs_page_json(session, box, cls, since, state, after, limit)
+        with read_connection(_url(request)) as conn:
+            return signs_page_json(conn, box, cls, since, state, after, limit)
 
     # Built here rather than through response_model: validating thousands of features one by one
     # was most of the time of a page (issue 13, finding 7); tests check the shape instead.
@@ -131,12 +131,12 @@ async def get_tile(request: Request, z: int, x: int, y: int,
     cache = _tile_cache(request) if z <= settings.tile_cache_max_zoom else None
 
     def read() -> bytes:
-        with session_scope(_url(request)) as session:
-            version = map_version(session) if cache is not None else None
+        with read_connection(_url(request)) as conn:
+            version = map_version(conn) if cache is not None else None
             data = cache.get((z, x, y), version) if cache is not None else None
             if data is None:
                 data = encode(tile_features(
-                    session, tile, points_min_zoom=settings.tile_points_min_zoom,
+                    conn, tile, points_min_zoom=settings.tile_points_min_zoom,
                     max_points=settings.tile_max_points, grid=settings.tile_cluster_grid))
                 if cache is not None:
                     cache.put((z, x, y), version, data)

@@ -5,15 +5,17 @@ API (``/health``, uploads, polling) its threads."""
 from __future__ import annotations
 
 import asyncio
+from contextlib import contextmanager
 from datetime import datetime, timezone
-from typing import Any, Callable, TypeVar
+from typing import Any, Callable, Iterator, TypeVar
 
 import anyio
 import orjson
 from fastapi import Request
 from sqlalchemy import and_, or_, select, tuple_
-from sqlalchemy.orm import Session
+from sqlalchemy.engine import Connection
 
+from app.service.db import get_engine
 from app.service.models import MapSign
 from app.service.queries import BBox
 
@@ -91,12 +93,12 @@ def _feature(row, utc: _UtcText) -> dict[str, Any]:
                            "first_seen_at": utc[first], "last_seen_at": utc[last]}}
 
 
-def signs_page_json(session: Session, bbox: BBox, cls: str | None, since: datetime | None,
+def signs_page_json(conn: Connection, bbox: BBox, cls: str | None, since: datetime | None,
                     state: str | None, cursor: tuple[float, float, str] | None,
                     limit: int) -> bytes:
     """One page of GET /signs as the JSON bytes of its FeatureCollection (plain tuples to dicts to
     one orjson.dumps: no ORM objects, no response-model validation per sign)."""
-    rows = session.connection().execute(
+    rows = conn.execute(
         page_query(bbox, cls, since, state, cursor, limit + 1)).all()
     page = rows[:limit]
     utc = _UtcText()
@@ -104,6 +106,14 @@ def signs_page_json(session: Session, bbox: BBox, cls: str | None, since: dateti
             "next": make_cursor(page[-1][3], page[-1][2], page[-1][0]) if len(rows) > limit
             else None}
     return orjson.dumps(body)
+
+
+@contextmanager
+def read_connection(url: str) -> Iterator[Connection]:
+    """A connection without a transaction: a map read is one statement (or two that need not
+    agree), and BEGIN and COMMIT were two more round trips to the database per request."""
+    with get_engine(url).connect() as conn:
+        yield conn.execution_options(isolation_level="AUTOCOMMIT")
 
 
 def _limiter(request: Request) -> anyio.CapacityLimiter:

@@ -19,7 +19,7 @@ import mapbox_vector_tile
 import numpy as np
 import shapely
 from sqlalchemy import Integer, cast, func, select
-from sqlalchemy.orm import Session
+from sqlalchemy.engine import Connection
 
 from app.service.map_read import live_in_bbox
 from app.service.models import MapSign
@@ -65,24 +65,24 @@ def _lat(y: int, n: int) -> float:
     return math.degrees(math.atan(math.sinh(math.pi * (1.0 - 2.0 * y / n))))
 
 
-def _points(session: Session, box: BBox, cap: int) -> list[tuple] | None:
+def _points(conn: Connection, box: BBox, cap: int) -> list[tuple] | None:
     """The tile's signs, or None when there are more than ``cap``."""
-    rows = session.connection().execute(
+    rows = conn.execute(
         select(MapSign.id, MapSign.cls, MapSign.state, MapSign.lon_deg, MapSign.lat_deg)
         .where(live_in_bbox(box)).limit(cap + 1)).all()
     return None if len(rows) > cap else [(1, *r) for r in rows]
 
 
-def _clusters(session: Session, box: BBox, grid: int) -> list[tuple]:
+def _clusters(conn: Connection, box: BBox, grid: int) -> list[tuple]:
     """(count, id, class, state, lon, lat) per non-empty cell of a grid x grid split of ``box``;
     class and state None where the members differ. Everything read is in the covering index."""
-    floor = func.floor if session.get_bind().dialect.name == "postgresql" else (
+    floor = func.floor if conn.dialect.name == "postgresql" else (
         lambda v: cast(v, Integer))  # SQLite: truncation is floor for the non-negative offsets here
     cw = (box.max_lon - box.min_lon) / grid
     ch = (box.max_lat - box.min_lat) / grid
     cx = floor((MapSign.lon_deg - box.min_lon) / cw)
     cy = floor((MapSign.lat_deg - box.min_lat) / ch)
-    rows = session.connection().execute(
+    rows = conn.execute(
         select(func.count(), func.min(MapSign.id), func.min(MapSign.cls), func.max(MapSign.cls),
                func.min(MapSign.state), func.max(MapSign.state), func.avg(MapSign.lon_deg),
                func.avg(MapSign.lat_deg))
@@ -92,12 +92,12 @@ def _clusters(session: Session, box: BBox, grid: int) -> list[tuple]:
             for n, first, cls_lo, cls_hi, st_lo, st_hi, lon, lat in rows]
 
 
-def tile_features(session: Session, tile: Tile, *, points_min_zoom: int, max_points: int,
+def tile_features(conn: Connection, tile: Tile, *, points_min_zoom: int, max_points: int,
                   grid: int) -> list[dict[str, Any]]:
     box = tile.bbox()
-    found = _points(session, box, max_points) if tile.z >= points_min_zoom else None
+    found = _points(conn, box, max_points) if tile.z >= points_min_zoom else None
     if found is None:
-        found = _clusters(session, box, grid)
+        found = _clusters(conn, box, grid)
     lonlat = np.array([(r[4], r[5]) for r in found], dtype=float).reshape(-1, 2)
     points = shapely.points(tile.pixels(lonlat[:, 0], lonlat[:, 1]))
     features = []
@@ -147,6 +147,6 @@ class TileCache:
                 self._tiles.popitem(last=False)
 
 
-def map_version(session: Session) -> Any:
+def map_version(conn: Connection) -> Any:
     """The newest change of the map (index ix_map_signs_updated_at: one index probe)."""
-    return session.connection().execute(select(func.max(MapSign.updated_at))).scalar()
+    return conn.execute(select(func.max(MapSign.updated_at))).scalar()
