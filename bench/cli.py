@@ -164,8 +164,8 @@ def _add_map_parser(bench_sub) -> None:
                    help="a PostgreSQL database to connect to for creating the bench's own "
                    "(default: %(default)s)")
     m.add_argument("--no-postgres", action="store_true", help="SQLite only")
-    m.add_argument("--concurrency", type=_int_list, default=[2, 8],
-                   help="clients at once; a comma-separated list runs each (default 2,8)")
+    m.add_argument("--concurrency", type=_int_list, default=[1, 2, 8],
+                   help="clients at once; a comma-separated list runs each (default 1,2,8)")
     m.add_argument("--scenarios", type=_scenario_list, default=list(SCENARIOS),
                    help=f"comma-separated, of {','.join(SCENARIOS)} (default: all)")
     m.add_argument("--requests", type=int, default=None,

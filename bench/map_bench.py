@@ -24,7 +24,7 @@ class MapBenchOptions:
     signs: int = 1_000_000
     sqlite_signs: int = 100_000
     postgres_url: str | None = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
-    concurrency: tuple[int, ...] = (2, 8)
+    concurrency: tuple[int, ...] = (1, 2, 8)
     scenarios: tuple[str, ...] = SCENARIOS
     requests: int = 400
     quick: bool = False
