@@ -63,6 +63,28 @@ class Settings(BaseSettings):
         0.03, description="flag a self-calibration whose fx/fy (relative) or cx/cy (relative to "
                           "the image size) differ more than this from the camera's stored one")
 
+    # Map reads (see docs/service.md, "Map at scale").
+    map_read_concurrency: int = Field(
+        2, ge=1, description="heavy map reads (sign pages, tiles) run at once; more wait without "
+                             "holding a thread the rest of the API needs")
+    map_page_max: int = Field(
+        2000, ge=1, description="signs per GET /signs page at most, whatever `limit` asks; "
+                                "clients follow `next`")
+    tile_max_zoom: int = Field(22, ge=0, le=30, description="deepest zoom of the vector tiles")
+    tile_points_min_zoom: int = Field(
+        15, ge=0, description="from this zoom on a tile holds every sign; below it, clusters")
+    tile_max_points: int = Field(
+        1000, ge=1, description="a tile with more signs than this is clustered at any zoom")
+    tile_cluster_grid: int = Field(
+        16, ge=1, le=256, description="a clustered tile has at most this many cells per side")
+    tile_cache_max_zoom: int = Field(
+        11, ge=-1, description="tiles at this zoom and below are kept in the API process until "
+                               "the map changes; -1 = none")
+    tile_cache_size: int = Field(4096, ge=1, description="tiles the cache holds at most")
+    tile_cache_ttl_s: float = Field(
+        300.0, gt=0, description="a cached tile is recomputed after this even if the map seems "
+                                 "unchanged (a lagging clock on a worker host)")
+
     @field_validator("storage_url")
     @classmethod
     def _s3_url(cls, value: str | None) -> str | None:

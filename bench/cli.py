@@ -1,11 +1,13 @@
 """``signmap bench [--quick]``, ``signmap bench sensitivity``, ``signmap bench fusion`` and
-``signmap bench corpus``: argument parsing only."""
+``signmap bench corpus`` and ``signmap bench map``: argument parsing only."""
 
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+
+SCENARIOS = ("pages", "big-pages", "tiles", "low-tiles")  # bench.map_load.SCENARIOS
 
 BENCH_DIR = Path(__file__).resolve().parent
 
@@ -99,6 +101,82 @@ def _add_corpus_parser(bench_sub) -> None:
     c.set_defaults(func=run_corpus_command)
 
 
+def run_map_command(args) -> int:
+    import sys
+
+    from bench.map_bench import QUICK_SIGNS, MapBenchOptions, run_map_bench
+
+    quick = args.quick
+    opts = MapBenchOptions(
+        signs=args.signs if args.signs is not None else (QUICK_SIGNS if quick else 1_000_000),
+        sqlite_signs=(args.sqlite_signs if args.sqlite_signs is not None
+                      else (QUICK_SIGNS if quick else 100_000)),
+        postgres_url=None if args.no_postgres else args.postgres_url,
+        concurrency=tuple(args.concurrency), requests=args.requests or (40 if quick else 400),
+        scenarios=tuple(args.scenarios), quick=quick, cache_dir=args.cache, out_dir=args.out, base_url=args.base_url, key=args.key)
+    try:
+        md, js, _ = run_map_bench(opts, command="signmap bench map " + " ".join(sys.argv[3:]))
+    except ValueError as exc:
+        raise SystemExit(f"signmap bench map: {exc}") from exc
+    print(md.read_text())
+    print(f"wrote {md} and {js}")
+    return 0
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 2,8, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError("at least one client")
+    return values
+
+
+def _scenario_list(text: str) -> list[str]:
+    values = [v for v in text.split(",") if v]
+    unknown = sorted(set(values) - set(SCENARIOS))
+    if unknown or not values:
+        raise argparse.ArgumentTypeError(f"unknown scenario {', '.join(unknown) or '(none)'}; "
+                                         f"choose from {','.join(SCENARIOS)}")
+    return values
+
+
+def _add_map_parser(bench_sub) -> None:
+    m = bench_sub.add_parser(
+        "map", help="map reads at scale: sign pages and vector tiles under concurrent clients",
+        description="Loads N synthetic map signs into PostgreSQL (database "
+        "signmap_bench_map_<N>, kept for the next run) and a smaller map into SQLite (under "
+        "--cache), starts `signmap serve` on 127.0.0.1 and times GET /signs?bbox= pages of a "
+        "city (following `next`), vector tiles at zoom 12-16 and 6-11, and /health meanwhile. "
+        "Writes <date>-map.md and .json.")
+    m.add_argument("--quick", action="store_true",
+                   help="a small map and few requests (seconds; writes <date>-map-quick.md)")
+    m.add_argument("--out", type=Path, default=BENCH_DIR / "results",
+                   help="where the markdown and JSON results go (default bench/results)")
+    m.add_argument("--cache", type=Path, default=BENCH_DIR / "cache",
+                   help="where the SQLite map is kept between runs (default bench/cache)")
+    m.add_argument("--signs", type=int, default=None,
+                   help="map signs on PostgreSQL (default 1,000,000; --quick: 3,000; 0 = skip)")
+    m.add_argument("--sqlite-signs", type=int, default=None,
+                   help="map signs on SQLite (default 100,000; --quick: 3,000; 0 = skip)")
+    m.add_argument("--postgres-url", default="postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
+                   help="a PostgreSQL database to connect to for creating the bench's own "
+                   "(default: %(default)s)")
+    m.add_argument("--no-postgres", action="store_true", help="SQLite only")
+    m.add_argument("--concurrency", type=_int_list, default=[1, 2, 8],
+                   help="clients at once; a comma-separated list runs each (default 1,2,8)")
+    m.add_argument("--scenarios", type=_scenario_list, default=list(SCENARIOS),
+                   help=f"comma-separated, of {','.join(SCENARIOS)} (default: all)")
+    m.add_argument("--requests", type=int, default=None,
+                   help="requests per scenario (default 400; --quick: 40)")
+    m.add_argument("--base-url", default=None,
+                   help="measure this already running server instead (its map must be the "
+                   "synthetic one of --signs); needs --key")
+    m.add_argument("--key", default=None, help="a reader key of --base-url's server")
+    m.set_defaults(func=run_map_command)
+
+
 def add_parsers(sub) -> None:
     """Add ``bench`` (with its ``sensitivity``, ``fusion`` and ``corpus`` subcommands) to the
     ``signmap`` subparsers."""
@@ -116,6 +194,7 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    _add_map_parser(bench_sub)
     from bench.api_load import add_parser as add_api_parser
 
     add_api_parser(bench_sub)

@@ -14,6 +14,7 @@ from app.service.db import session_scope
 from app.service.models import (AdminSession, ApiKey, CalibrationRecord, Journey, JourneyCoverage,
                                 JourneySign)
 from tests.browser.seed import add_journey
+from app.service.map_tiles import decode
 from tests.conftest import ADMIN_KEY, auth, sqlite_stack
 
 PAGES = ["/admin", "/admin/journeys", "/admin/map", "/admin/cameras",
@@ -182,6 +183,18 @@ def test_map_page_serves_leaflet_locally_and_passes_the_public_map_through(clien
     assert one.status_code == 200
     assert one.json() == client.get(f"/api/v1/signs/{sign_id}", headers=auth(ADMIN_KEY)).json()
     assert client.get("/admin/api/signs?bbox=nonsense").status_code == 400
+    # The map draws the vector tiles: served through the same pass-through, byte for byte.
+    assert 'src="/admin/static/app/vendor/Leaflet.VectorGrid.bundled.min.js"' in page
+    assert client.get("/admin/static/app/vendor/Leaflet.VectorGrid.bundled.min.js").status_code == 200
+    tile = "/tiles/17/68600/45006.mvt"  # holds the seeded signs (tests/browser/seed.py)
+    passed = client.get(f"/admin/api{tile}")
+    direct = client.get(f"/api/v1{tile}", headers=auth(ADMIN_KEY))
+    assert passed.status_code == 200 and passed.content == direct.content
+    assert passed.headers["content-type"] == "application/vnd.mapbox-vector-tile"
+    assert len(decode(passed.content)["signs"]["features"]) == len(direct_ids := [
+        f["id"] for f in client.get(f"/admin/api/signs?bbox={bbox}").json()["features"]])
+    assert direct_ids
+    assert client.get("/admin/api/tiles/30/0/0.mvt").status_code == 400
 
 
 def test_cameras_page_shows_each_cameras_calibrations(client, stack):

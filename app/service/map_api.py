@@ -6,16 +6,19 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response, status
 from pydantic import BaseModel, Field
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.geojson import feature_collection, sign_feature
+from app.geojson import sign_feature
 from app.service import fusion_job, storage
 from app.service.auth import Principal, require
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign, MapSign, MapSignMember
+from app.service.map_read import heavy_read, parse_cursor, read_connection, signs_page_json
+from app.service.map_tiles import (MEDIA_TYPE, Tile, TileCache, encode, map_version,
+                                   tile_features)
 from app.service.queries import BBox
 from app.service.schemas import NO_NUL, ErrorOut, PointGeometry
 
@@ -36,6 +39,9 @@ class MapSignProperties(BaseModel):
     n_observations: int
     first_seen_at: datetime
     last_seen_at: datetime
+    facing_deg: float | None = Field(
+        None, description="compass bearing its face points to (degrees clockwise from north), "
+                          "the circular mean of the journeys'; null when unknown")
 
 
 class MapSignFeature(BaseModel):
@@ -77,65 +83,90 @@ def _since_utc(since: datetime) -> datetime:
                             f"since {since.isoformat()} is out of range") from exc
 
 
-def _in_bbox(dialect: str, bbox: BBox):
-    if dialect == "postgresql":
-        # Matches the GiST index on point(lon_deg, lat_deg) (migration 0002).
-        point = func.point(MapSign.lon_deg, MapSign.lat_deg)
-        return or_(*(point.op("<@")(func.box(func.point(lo, bbox.min_lat),
-                                             func.point(hi, bbox.max_lat)))
-                     for lo, hi in bbox.lon_ranges()))
-    return and_(MapSign.lat_deg.between(bbox.min_lat, bbox.max_lat),
-                or_(*(MapSign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
-
-
 def map_sign_feature(row: MapSign, **extra: Any) -> dict[str, Any]:
     return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m, state=row.state,
                         std_m=row.std_m, n_journeys=row.n_journeys,
                         n_observations=row.n_observations,
                         first_seen_at=row.first_seen_at.isoformat(),
-                        last_seen_at=row.last_seen_at.isoformat(), **extra)
-
-
-def map_signs_query(dialect: str, bbox: BBox, cls: str | None, since: datetime | None,
-                    state: str | None, cursor: str | None, limit: int):
-    query = select(MapSign).where(MapSign.removed_at.is_(None), _in_bbox(dialect, bbox))
-    if cls is not None:
-        query = query.where(MapSign.cls == cls)
-    if since is not None:
-        query = query.where(MapSign.updated_at >= _aware(since))
-    if state is not None:
-        query = query.where(MapSign.state == state)
-    if cursor is not None:
-        query = query.where(MapSign.id > cursor)
-    return query.order_by(MapSign.id).limit(limit)
+                        last_seen_at=row.last_seen_at.isoformat(), facing_deg=row.facing_deg,
+                        **extra)
 
 
 @router.get("/signs", response_model=MapSignCollection,
             summary="The fused map's signs in a box (GeoJSON), paginated",
             description="`bbox=minlon,minlat,maxlon,maxlat` in WGS84 degrees (minlon > maxlon "
                         "crosses the antimeridian); optional `class`, `state`, `since` (updated at "
-                        "or after, ISO 8601). Ordered by id; follow `next` with `cursor`.",
-            responses={400: {"model": ErrorOut, "description": "bad bbox or since"}, **_AUTH})
-def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
-                  bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
-                  cls: Annotated[str | None, Query(alias="class", examples=["stop"],
-                                                   pattern=NO_NUL)] = None,
-                  since: datetime | None = None, state: State | None = None,
-                  limit: Annotated[int, Query(ge=1, le=10000)] = 1000,
-                  cursor: Annotated[str | None, Query(pattern=NO_NUL)] = None
-                  ) -> dict[str, Any]:
+                        "or after, ISO 8601). Ordered by position (latitude, longitude, then id); "
+                        "follow `next` with `cursor` (opaque: pass it unchanged). A page holds "
+                        "at most `limit` signs and never more than the service's page maximum "
+                        "(SIGNMAP_MAP_PAGE_MAX, default 2000).",
+            responses={400: {"model": ErrorOut, "description": "bad bbox, cursor or since"}, **_AUTH})
+async def get_map_signs(request: Request, who: Annotated[Principal, Depends(require("reader"))],
+                        bbox: Annotated[str, Query(examples=["8.41,49.00,8.43,49.02"])],
+                        cls: Annotated[str | None, Query(alias="class", examples=["stop"],
+                                                         pattern=NO_NUL)] = None,
+                        since: datetime | None = None, state: State | None = None,
+                        limit: Annotated[int, Query(ge=1, le=10000)] = 1000,
+                        cursor: Annotated[str | None, Query(pattern=NO_NUL)] = None) -> Response:
     try:
         box = BBox.parse(bbox)
+        after = None if cursor is None else parse_cursor(cursor)
     except ValueError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    limit = min(limit, request.app.state.settings.map_page_max)
     since = None if since is None else _since_utc(since)
-    with session_scope(_url(request)) as session:
-        query = map_signs_query(session.get_bind().dialect.name, box, cls, since, state, cursor,
-                                limit + 1)
-        rows = list(session.scalars(query))
-    page = rows[:limit]
-    return feature_collection([map_sign_feature(r) for r in page],
-                              next=page[-1].id if len(rows) > limit else None)
+
+    def read() -> bytes:
+        with read_connection(_url(request)) as conn:
+            return signs_page_json(conn, box, cls, since, state, after, limit)
+
+    # Built here rather than through response_model: validating thousands of features one by one
+    # was most of the time of a page (issue 13, finding 7); tests check the shape instead.
+    return Response(await heavy_read(request, read), media_type="application/json")
+
+
+@router.get("/tiles/{z}/{x}/{y}.mvt", response_class=Response,
+            summary="The map's signs as a vector tile (Mapbox Vector Tile)",
+            description="Web Mercator tiles numbered as OpenStreetMap's. One layer `signs` of "
+                        "points with `id`, `class`, `state` and `count` (1 for a sign); at low "
+                        "zoom, and in a tile with too many signs, a point stands for a cluster: "
+                        "`count` signs, `id` the smallest of theirs, `class`/`state` only when "
+                        "all members share one. Low-zoom tiles are cached until the map changes.",
+            responses={200: {"content": {MEDIA_TYPE: {}}, "description": "the tile"},
+                       400: {"model": ErrorOut, "description": "z, x or y out of range"},
+                       **_AUTH})
+async def get_tile(request: Request, z: int, x: int, y: int,
+                   who: Annotated[Principal, Depends(require("reader"))]) -> Response:
+    settings = request.app.state.settings
+    try:
+        tile = Tile.checked(z, x, y, settings.tile_max_zoom)
+    except ValueError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+
+    cache = _tile_cache(request) if z <= settings.tile_cache_max_zoom else None
+
+    def read() -> bytes:
+        with read_connection(_url(request)) as conn:
+            version = map_version(conn) if cache is not None else None
+            data = cache.get((z, x, y), version) if cache is not None else None
+            if data is None:
+                data = encode(tile_features(
+                    conn, tile, points_min_zoom=settings.tile_points_min_zoom,
+                    max_points=settings.tile_max_points, grid=settings.tile_cluster_grid))
+                if cache is not None:
+                    cache.put((z, x, y), version, data)
+        return data
+
+    return Response(await heavy_read(request, read), media_type=MEDIA_TYPE)
+
+
+def _tile_cache(request: Request) -> TileCache:
+    cache = getattr(request.app.state, "tile_cache", None)
+    if cache is None:
+        settings = request.app.state.settings
+        cache = request.app.state.tile_cache = TileCache(settings.tile_cache_size,
+                                                         settings.tile_cache_ttl_s)
+    return cache
 
 
 @router.get("/signs/changes", response_model=MapChanges,

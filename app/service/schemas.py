@@ -91,7 +91,12 @@ class SignProperties(BaseModel):
     class_: str = Field(alias="class", examples=["stop"])
     track_id: str | None = Field(None, examples=["0"])
     journey_id: str | None = Field(None, examples=[JOURNEY_ID_EXAMPLE])
-    std_m: float | None = Field(None, description="1-sigma position uncertainty, metres")
+    std_m: float | None = Field(None, description="1-sigma position uncertainty (triangulation, "
+                                                  "poses, alignment and GPS), metres")
+    r95_h_m: float | None = Field(None, description="horizontal radius holding the true position "
+                                                    "with 95 % probability, metres")
+    facing_deg: float | None = Field(None, description="compass bearing its face points to "
+                                                       "(degrees clockwise from north)")
     reprojection_rms_px: float | None = None
     observations: list[ObservationOut] | None = Field(
         None, description="the sign in each observing frame's rectified camera, metres")

@@ -141,21 +141,40 @@ def test_operator_session(browser, server):
     assert page.locator(".crops img").count() == 4
     shot(page, "journey")
 
-    # The sign map without reachable tiles: the viewport's signs still appear as markers.
+    # The sign map reads the vector tiles (base map tiles unreachable): each sign in view is a
+    # marker; a click opens its popup and fetches its evidence.
+    tiles = []
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("response", lambda r: tiles.append(r) if ".mvt" in r.url else None)
     page.goto(f"{base}/admin/map")
     page.wait_for_function("document.getElementById('map-status').textContent.includes('in view')",
                            timeout=10_000)
+    assert tiles and all(r.status == 200 for r in tiles)
+    assert all("/admin/api/tiles/17/" in r.url for r in tiles)
     answer = httpx.get(f"{base}/api/v1/signs", headers=auth(ADMIN_KEY),
                        params={"bbox": "8.41,49.0,8.43,49.02"}).json()
     assert len(answer["features"]) >= 1
     assert page.locator(".sign-marker").count() == len(answer["features"])
     page.locator(".sign-marker").first.click(force=True)
     page.wait_for_selector(".leaflet-popup-content")
+    assert page.locator(".leaflet-popup-content td").first.inner_text().startswith(
+        answer["features"][0]["id"][:3])
     if answer["features"][0]["properties"].get("state"):  # the fused map: evidence is fetched
         page.wait_for_selector(".leaflet-popup-content pre", timeout=10_000)
-    page.wait_for_timeout(1000)  # a popup that pans the map reloads the viewport's signs
-    assert page.locator(".sign-marker").count() == len(answer["features"])
     shot(page, "map")
+    # Zoomed out, the same signs are one cluster.
+    page.evaluate("document.querySelector('#map') && window.scrollTo(0, 0)")
+    page.keyboard.press("Escape")
+    for _ in range(6):
+        page.locator(".leaflet-control-zoom-out").click()
+        page.wait_for_timeout(300)
+    page.wait_for_function("document.getElementById('map-status').textContent.includes('cluster')",
+                           timeout=10_000)
+    assert page.locator(".sign-marker").count() == 0
+    assert page.locator(".sign-cluster").count() == 1
+    shot(page, "map-clustered")
+    assert errors == []
 
     page.goto(f"{base}/admin/cameras")
     assert page.locator("svg.fx-chart polyline").count() == 1

@@ -206,6 +206,11 @@ async def map_signs(request: Request, signed_in: SignedIn) -> Response:
     return await _pass_through(request, signed_in, "/api/v1/signs")
 
 
+@router.get("/api/tiles/{z}/{x}/{y}.mvt")
+async def map_tile(request: Request, z: int, x: int, y: int, key: SessionKey) -> Response:
+    return await _pass_through(request, key, f"/api/v1/tiles/{z}/{x}/{y}.mvt")
+
+
 @router.get("/api/signs/{sign_id}")
 async def map_sign(request: Request, sign_id: str, signed_in: SignedIn) -> Response:
     return await _pass_through(request, signed_in, f"/api/v1/signs/{quote(sign_id, safe='')}")

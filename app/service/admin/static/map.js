@@ -1,67 +1,77 @@
-// The sign map: the viewport drives a bbox query of the public GET /api/v1/signs (through the
-// dashboard's same-origin pass-through, which adds the session's key server-side).
+// The sign map: the service's vector tiles (GET /api/v1/tiles/{z}/{x}/{y}.mvt, through the
+// dashboard's same-origin pass-through, which adds the session's key server-side), drawn by
+// Leaflet.VectorGrid as SVG. A point with count 1 is a sign; a larger count is a cluster of that
+// many (low zoom, or a crowded tile): clicking it zooms in.
 "use strict";
 (function () {
   const el = document.getElementById("map");
   const status = document.getElementById("map-status");
   const map = L.map(el, {preferCanvas: false});
   Signmap.addTiles(map, el.dataset.tileUrl);
-  const layer = L.layerGroup().addTo(map);
-  const LIMIT = 2000;  // a city's worth; beyond it the status line asks to zoom in
-  const markers = new Map();
-  let generation = 0;
 
   function popup(p) {
     const rows = Object.entries(p).filter(([k, v]) => typeof v !== "object" || v === null)
       .map(([k, v]) => `<tr><th>${Signmap.escape(k)}</th><td>${Signmap.escape(v)}</td></tr>`);
     const evidence = p.evidence ? `<pre>${Signmap.escape(JSON.stringify(p.evidence, null, 1))}</pre>` : "";
-    const journey = p.journey_id ? `<a href="/admin/journeys/${encodeURIComponent(p.journey_id)}">journey</a>` : "";
-    return `<table class="popup">${rows.join("")}</table>${evidence}${journey}`;
+    return `<table class="popup">${rows.join("")}</table>${evidence}`;
   }
 
-  async function evidence(marker, f) {
-    // The map sign's evidence (member journey signs), where the map serves GET /signs/{id}.
-    if (f.evidenceLoaded) return;
-    f.evidenceLoaded = true;
-    const answer = await fetch(`/admin/api/signs/${encodeURIComponent(f.id)}`, {credentials: "same-origin"});
+  async function evidence(shown, id) {
+    // The whole map sign with its evidence (member journey signs): GET /signs/{id}.
+    const answer = await fetch(`/admin/api/signs/${encodeURIComponent(id)}`, {credentials: "same-origin"});
     if (!answer.ok) return;
     const body = await answer.json();
     const props = body.properties || {};
-    const shown = Object.fromEntries(["evidence", "members"].filter(k => k in props).map(k => [k, props[k]]));
-    const p = Object.assign({}, f.properties, {evidence: Object.keys(shown).length ? shown : props});
-    marker.setPopupContent(popup(p));
+    const kept = Object.fromEntries(["evidence", "members"].filter(k => k in props).map(k => [k, props[k]]));
+    const p = Object.assign({}, props, {evidence: Object.keys(kept).length ? kept : null});
+    delete p.members; delete p.cov_enu;
+    if (shown.isOpen()) shown.setContent(popup(p));
   }
 
-  async function load() {
-    const b = map.getBounds();
-    const bbox = [b.getWest(), b.getSouth(), b.getEast(), b.getNorth()]
-      .map((v, i) => Math.max(i % 2 ? -90 : -180, Math.min(i % 2 ? 90 : 180, v)).toFixed(6)).join(",");
-    const mine = ++generation;
-    status.textContent = "loading…";
-    const answer = await fetch(`/admin/api/signs?bbox=${bbox}&limit=${LIMIT}`, {credentials: "same-origin"});
-    if (mine !== generation) return;
-    if (!answer.ok) { status.textContent = `map query failed (${answer.status})`; return; }
-    const body = await answer.json();
-    // Markers already shown stay (with any open popup); only the difference is redrawn.
-    const seen = new Set();
-    for (const f of body.features) {
-      seen.add(f.id);
-      if (markers.has(f.id)) continue;
-      const [lon, lat] = f.geometry.coordinates;
-      const p = f.properties;
-      const marker = Signmap.marker(lat, lon, p.class, `state-${p.state || "journey"}`)
-        .bindPopup(popup(p), {maxWidth: 420, maxHeight: 320}).addTo(layer);
-      marker.on("popupopen", () => evidence(marker, f));
-      markers.set(f.id, marker);
+  function style(p) {
+    if (p.count > 1) {
+      return {radius: Math.min(22, 7 + 2.5 * Math.log2(p.count)), fill: true, fillOpacity: 0.75,
+              fillColor: "#555", color: "#fff", weight: 2, className: "sign-cluster"};
     }
-    for (const [id, marker] of markers) {
-      if (!seen.has(id)) { layer.removeLayer(marker); markers.delete(id); }
-    }
-    status.textContent = `${body.features.length} signs in view` + (body.next || body.features.length >= LIMIT ? " (more: zoom in)" : "");
+    return {radius: 7, fill: true, fillOpacity: 0.9, fillColor: Signmap.classColor(p.class),
+            color: "#222", weight: 1, className: `sign-marker state-${p.state || "journey"}`};
   }
+
+  // Leaflet asks a clicked small circle for its position (getLatLng); VectorGrid 1.3's tile-drawn
+  // circles have none, so they are told to answer with the mouse's position instead.
+  const SignGrid = L.VectorGrid.Protobuf.extend({
+    _createLayer(feat, pxPerExtent) {
+      const layer = L.VectorGrid.Protobuf.prototype._createLayer.call(this, feat, pxPerExtent);
+      layer.getLatLng = null;
+      return layer;
+    },
+  });
+  const signs = new SignGrid("/admin/api/tiles/{z}/{x}/{y}.mvt", {
+    rendererFactory: L.svg.tile, interactive: true, maxNativeZoom: 22, maxZoom: 22,
+    fetchOptions: {credentials: "same-origin"},
+    vectorTileLayerStyles: {signs: style},
+  }).addTo(map);
+
+  signs.on("click", (e) => {
+    const p = e.layer.properties;
+    const at = e.latlng;
+    if (p.count > 1) {
+      map.setView(at, Math.min(map.getZoom() + 2, 22));
+      return;
+    }
+    const shown = L.popup({maxWidth: 420, maxHeight: 320}).setLatLng(at)
+      .setContent(popup(p)).openOn(map);
+    evidence(shown, p.id);
+  });
+  signs.on("loading", () => { status.textContent = "loading…"; });
+  signs.on("load", () => {
+    const n = el.querySelectorAll(".sign-marker").length;
+    const clusters = el.querySelectorAll(".sign-cluster").length;
+    status.textContent = `${n} signs in view` + (clusters ? ` and ${clusters} cluster${clusters > 1 ? "s" : ""} (zoom in)` : "");
+  });
 
   async function start() {
-    // Start on the newest signs: an unbounded-but-small query finds where there is data.
+    // Start where there are signs: a one-sign page of the whole world finds a place.
     const answer = await fetch("/admin/api/signs?bbox=-180,-90,180,90&limit=1", {credentials: "same-origin"});
     const body = answer.ok ? await answer.json() : {features: []};
     if (body.features.length) {
@@ -71,6 +81,5 @@
       map.setView([49.0, 8.4], 5);
     }
   }
-  map.on("moveend", load);
   start();
 })();
