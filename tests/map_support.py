@@ -64,14 +64,19 @@ def journey_result(world: World, rng: np.random.Generator, *, offset_enu_m=None,
     ``only`` when given) displaced by one GPS offset plus its own noise, and the aligned poses."""
     offset = (np.array([*rng.normal(0.0, gps_std_m, 2), 0.0]) if offset_enu_m is None
               else np.asarray(offset_enu_m, float))
+    # Facings come from their own stream, seeded by the offset, so that the position draws (which
+    # the fusion tests' realisations depend on) stay those of before facings existed.
+    facing_rng = np.random.default_rng(np.frombuffer(offset.tobytes(), dtype=np.uint32))
     signs = []
     for track, (cls, e, n, u) in world.signs.items():
         if track in skip or (only is not None and track not in only):
             continue
         xyz = np.array([e, n, u]) + offset + np.array([*rng.normal(0.0, sign_std_m, 2), 0.0])
         lat, lon, alt = world.latlonalt(xyz)
+        # Facing the drivers coming along the road (+x, east) from the west, give or take 10 deg.
         signs.append(Sign(track, cls, xyz, lat, lon, alt, sign_std_m, 0.5,
-                          [SignObservation("000000", (1.0, -0.5, 12.0))]))
+                          [SignObservation("000000", (1.0, -0.5, 12.0))],
+                          facing_deg=float(270.0 + facing_rng.normal(0.0, 10.0))))
     road_end_m = 20.0 * len(world.signs) + 40.0 if road_end_m is None else road_end_m
     xs = np.arange(-30.0, road_end_m, 2.0)
     T_world_cam = np.tile(np.eye(4), (len(xs), 1, 1))

@@ -49,8 +49,8 @@ def test_the_accounting_reports_lost_and_twice_ended_uploads(tmp_path):
                             bundle_bytes=1, status="failed", progress=0.0, n_frames=5,
                             attempts=1, error="no turn"))
     log = tmp_path / "api.log"
-    log.write_text("".join(f"2026-11-25 INFO app.service.jobs: journey j-twice: failed at "
-                           f"calibrate: no turn\n" for _ in range(2)))
+    log.write_text("".join("2026-11-25 INFO app.service.jobs: journey j-twice: failed at "
+                           "calibrate: no turn\n" for _ in range(2)))
     service = Service("sqlite", "http://127.0.0.1:1", stack.settings, "f", "r", [log])
     jobs = account(service, Counter({"j-twice": 1, "j-lost": 1}), {"sha": {"a", "b"}})
     assert jobs["missing"] == ["j-lost"]

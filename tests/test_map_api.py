@@ -64,7 +64,9 @@ def test_map_routes(stack, journey_data):
         by_track = {ms_track(world, f): f for f in features}
         props = by_track["0"]["properties"]
         assert set(props) == {"id", "class", "state", "std_m", "n_journeys", "n_observations",
-                              "first_seen_at", "last_seen_at"}
+                              "first_seen_at", "last_seen_at", "facing_deg"}
+        # Four journeys' facings (270 +- 10 deg each) fused by their circular mean.
+        assert abs(props["facing_deg"] - 270.0) < 12.0
         assert (props["class"], props["state"], props["n_journeys"], props["n_observations"]) == (
             "stop", "confirmed", 4, 4)
         assert props["first_seen_at"].startswith("2026-11-01T08:00:00")

@@ -7,19 +7,18 @@ from __future__ import annotations
 import asyncio
 import math
 import secrets
-import time
 from datetime import datetime, timezone
 
 import anyio
 import httpx
 import pytest
-from sqlalchemy import create_engine, func, select, text
+from sqlalchemy import create_engine, select, text
 
 from app.service.db import session_scope
 from app.service.map_tiles import EXTENT, MEDIA_TYPE, Tile, decode
 from app.service.models import MapSign
 from app.service.queries import BBox
-from bench.map_data import ensure_loaded, layout
+from bench.map_data import ensure_loaded
 from tests.conftest import ADMIN_KEY, PG_URL, auth, make_settings, sqlite_stack
 
 T0 = datetime(2026, 11, 1, 8, 0, tzinfo=timezone.utc)

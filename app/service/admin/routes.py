@@ -207,8 +207,8 @@ async def map_signs(request: Request, signed_in: SignedIn) -> Response:
 
 
 @router.get("/api/tiles/{z}/{x}/{y}.mvt")
-async def map_tile(request: Request, z: int, x: int, y: int, key: SessionKey) -> Response:
-    return await _pass_through(request, key, f"/api/v1/tiles/{z}/{x}/{y}.mvt")
+async def map_tile(request: Request, z: int, x: int, y: int, signed_in: SignedIn) -> Response:
+    return await _pass_through(request, signed_in, f"/api/v1/tiles/{z}/{x}/{y}.mvt")
 
 
 @router.get("/api/signs/{sign_id}")
