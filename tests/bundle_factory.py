@@ -284,6 +284,10 @@ _CASES = {
                                "x1 < x2"),
     "detection_empty_class": (lambda: _edit(_detection(("000001", "7", "", 1, 1, 5, 5, ""))),
                               "empty class"),
+    # Passed the upload and then failed the job on PostgreSQL (class is a VARCHAR(200) there).
+    "detection_class_too_long": (lambda: _edit(_detection(("000001", "7", "x" * 201, 1, 1, 5, 5,
+                                                           ""))),
+                                 "class is 201 characters long, more than the limit of 200"),
     "path_traversal": (lambda: _edit({"../evil.png": _PNG}), "unsafe path in bundle: '../evil.png'"),
     "absolute_path": (lambda: _edit({"/abs.png": _PNG}), "unsafe path in bundle: '/abs.png'"),
     "backslash_path": (lambda: _edit({"frames\\000009.png": _PNG}), "unsafe path in bundle"),

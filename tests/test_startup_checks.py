@@ -1,4 +1,4 @@
-"""Startup checks and JSON errors (issue 13, finding 6): `serve` and `worker` refuse to start, with one
+"""Startup checks and JSON errors (issue 13, finding 6): `serve`, `worker`, `db upgrade` and `keys create` refuse to start, with one
 line naming the URL or path, when the database is unreachable or the data dir is read-only;
 /health answers 503 JSON when the database goes away; any unhandled error answers JSON 500."""
 
@@ -33,7 +33,7 @@ def _run(command: str, env: dict, timeout_s: float = 60) -> subprocess.Completed
     try:
         return subprocess.run([sys.executable, "-m", "app.cli", command, "--port",
                                str(_closed_port())] if command == "serve" else
-                              [sys.executable, "-m", "app.cli", command],
+                              [sys.executable, "-m", "app.cli", *command.split()],
                               cwd=REPO, env=env, capture_output=True, text=True,
                               timeout=timeout_s)
     except subprocess.TimeoutExpired as exc:
@@ -47,17 +47,25 @@ def _env(tmp_path: Path, **overrides) -> dict:
     return env
 
 
-@pytest.mark.parametrize("command", ["serve", "worker"])
+@pytest.mark.parametrize("command", ["serve", "worker", "db upgrade", "keys create --role admin"])
 def test_an_unreachable_database_stops_serve_and_worker(tmp_path, command):
     port = _closed_port()
     url = f"postgresql+psycopg://signmap:s3cret@127.0.0.1:{port}/signmap"
     done = _run(command, _env(tmp_path, database_url=url, broker_url="redis://127.0.0.1:6379/13"))
     assert done.returncode == 1, done.stderr[-2000:]
     last = done.stderr.strip().splitlines()[-1]
-    assert last.startswith(f"signmap {command}: database postgresql+psycopg://signmap:***@"
+    assert last.startswith(f"signmap {command.removesuffix(' --role admin')}: database postgresql+psycopg://signmap:***@"
                            f"127.0.0.1:{port}/signmap is unreachable: "), last
     assert "s3cret" not in done.stderr + done.stdout
     assert "Signmap API up" not in done.stderr and "ready" not in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_keys_create_on_an_unmigrated_database_says_to_upgrade(tmp_path):
+    done = _run("keys create --role admin", _env(tmp_path))
+    assert done.returncode == 1 and done.stdout == "", done.stderr[-2000:]
+    assert done.stderr.strip().endswith("run `signmap db upgrade`"), done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
 
 
 @contextmanager

@@ -23,6 +23,9 @@ from app.pipeline.csv_table import iter_table, parse_float
 from app.pipeline.types import BundleError, Detection
 
 BORDER_TOLERANCE_PX = 1.0
+# The map stores a class in 200 characters (journey_signs.class, map_signs.class): refused at the
+# upload rather than failing the job when its signs are written.
+MAX_CLASS_CHARS = 200
 
 
 @dataclass(frozen=True)
@@ -93,6 +96,9 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
                               "detection boxes, the limit per frame")
         if not cls:
             raise BundleError(f"detection row {row} has an empty class")
+        if len(cls) > MAX_CLASS_CHARS:
+            raise BundleError(f"detection row {row}: class is {len(cls)} characters long, more "
+                              f"than the limit of {MAX_CLASS_CHARS}")
         try:  # the fast path formats no message for a valid row
             x1, y1, x2, y2 = map(float, coords)
         except ValueError:

@@ -55,19 +55,34 @@ def worker(args: argparse.Namespace) -> int:
 
 
 def db_upgrade(args: argparse.Namespace) -> int:
+    from app.service import startup
     from app.service.db import upgrade
 
     settings = Settings()
     _logging(settings)
-    upgrade(settings.effective_database_url, args.revision)
+    url = settings.effective_database_url
+    try:
+        if url.startswith("sqlite"):
+            startup.check_data_dir(settings.data_dir)
+        startup.current_revision(url)
+    except startup.StartupError as exc:
+        raise SystemExit(f"signmap db upgrade: {exc}") from None
+    upgrade(url, args.revision)
     return 0
 
 
 def keys_create(args: argparse.Namespace) -> int:
+    from app.service import startup
     from app.service.auth import create_key
     from app.service.db import session_scope
 
     settings = Settings()
+    try:
+        if settings.effective_database_url.startswith("sqlite"):
+            startup.check_data_dir(settings.data_dir)
+        startup.check_database(settings.effective_database_url)
+    except startup.StartupError as exc:
+        raise SystemExit(f"signmap keys create: {exc}") from None
     with session_scope(settings.effective_database_url) as session:
         key = create_key(session, args.role, args.name)
     print(key)

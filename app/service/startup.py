@@ -51,17 +51,23 @@ def head_revision() -> str:
     return ScriptDirectory.from_config(config).get_current_head()
 
 
-def check_database(url: str, timeout_s: float = 5.0) -> None:
-    """The database at ``url`` answers and is at the newest migration."""
+def current_revision(url: str, timeout_s: float = 5.0) -> str | None:
+    """The migration the database at ``url`` is at (None before the first); StartupError when it
+    does not answer."""
     connect_args = {"connect_timeout": int(max(1, timeout_s))} if url.startswith("postgresql") else {}
     engine = create_engine(url, poolclass=pool.NullPool, connect_args=connect_args)
     try:
         with engine.connect() as connection:
-            current = MigrationContext.configure(connection).get_current_revision()
+            return MigrationContext.configure(connection).get_current_revision()
     except Exception as exc:
         raise StartupError(f"database {safe_url(url)} is unreachable: {_one_line(exc)}") from None
     finally:
         engine.dispose()
+
+
+def check_database(url: str, timeout_s: float = 5.0) -> None:
+    """The database at ``url`` answers and is at the newest migration."""
+    current = current_revision(url, timeout_s)
     head = head_revision()
     if current != head:
         raise StartupError(f"database {safe_url(url)} is at schema revision {current or 'none'}, "
