@@ -1,6 +1,7 @@
-"""Startup checks and JSON errors (issue 13, finding 6): `serve`, `worker`, `db upgrade` and `keys create` refuse to start, with one
-line naming the URL or path, when the database is unreachable or the data dir is read-only;
-/health answers 503 JSON when the database goes away; any unhandled error answers JSON 500."""
+"""Startup checks and JSON errors (issue 13, finding 6): `serve`, `worker`, `db upgrade` and `keys
+create` refuse to start, with one line naming the URL or path, when the database is unreachable or
+the data dir is read-only; /health answers 503 JSON when the database goes away; any unhandled
+error answers JSON 500."""
 
 from __future__ import annotations
 
