@@ -19,8 +19,8 @@ from typing import Any, NamedTuple
 
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import JourneyResult
-from bench import corpus_report
-from bench.metrics import evaluate_result, mappable_signs
+from bench import corpus_report, evaluate
+from bench.metrics import evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
 from bench.runner import _meta as bench_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
@@ -118,12 +118,26 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
     record["calibration"] = calibration_record(out.result, truth["camera"])
     if not calibrate_only and truth.get("signs"):
         ev = evaluate_result(out.result, truth)
+        mappable = mappable_ids(truth, min_track_frames)
+        found = {e["truth_id"] for e in ev["sign_errors"].values()}
         record["signs"] = {**ev["signs"], "n_truth": len(truth["signs"]),
-                           "n_mappable": mappable_signs(truth, min_track_frames),
+                           "n_mappable": len(mappable),
+                           "n_mappable_found": len(found & set(mappable)),
                            "n_rejected": len(ev["rejected"])}
         record["ate"] = ev["ate"]
         record["sign_errors"] = ev["sign_errors"]
+        record["unmatched_signs"] = ev["unmatched_signs"]
+        record["missed_mappable"] = {i: _why_not(i, truth, ev["rejected"])
+                                     for i in mappable if i not in found}
+        record["rejected"] = ev["rejected"]
     return record
+
+
+def _why_not(truth_id: str, truth: dict, rejected: dict[str, str]) -> str:
+    """The pipeline's reason for not placing a mappable true sign, when its track was rejected."""
+    track = next((str(s.get("track_id", "")) for s in truth["signs"] if evaluate.truth_id(s) == truth_id), "")
+    return rejected.get(track, "not placed, no reason given" if track else
+                        "not placed (the bundle has no track ids: see rejected)")
 
 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,

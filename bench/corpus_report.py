@@ -103,11 +103,27 @@ def half_summary(records: list[dict]) -> dict:
         "calib_s_p90": quantile((r.get("calib_s") for r in records), 90),
         "wall_s_median": quantile((r.get("wall_s") for r in records), 50),
         # Full runs only (not --calibrate-only): the sign metrics of the suite, per journey.
-        "signs_placed": sum(r["signs"]["n_signs"] for r in signed),
+        "signs_placed": sum(r["signs"]["n_signs"] + r["signs"].get("n_false", 0)
+                            + r["signs"].get("n_duplicate", 0) for r in signed),
         "signs_mappable": sum(r["signs"]["n_mappable"] for r in signed),
+        "signs_mappable_found": sum(r["signs"].get("n_mappable_found", 0) for r in signed),
+        "signs_false": sum(r["signs"].get("n_false", 0) for r in signed),
+        "signs_duplicate": sum(r["signs"].get("n_duplicate", 0) for r in signed),
         "abs_median_m": quantile((r["signs"]["abs_median_m"] for r in signed), 50),
         "facing_median_deg": quantile((r["signs"].get("facing_median_deg") for r in signed), 50),
-        **sign_error_stats(signed)}
+        **sign_error_stats(signed),
+        "by_gps": {kind: sign_error_stats([r for r in signed if gps_kind(r) == kind])
+                   for kind in GPS_KINDS}}
+
+
+GPS_KINDS = ("oxts", "phone")
+
+
+def gps_kind(record: dict) -> str:
+    """"oxts" for OXTS-like GPS (white noise <= 0.3 m, bias sigma <= 0.15 m), else "phone"."""
+    p = record.get("params", {})
+    oxts = p.get("gps_white_sigma_m", 9.9) <= 0.3 and p.get("gps_bias_sigma_m", 9.9) <= 0.15
+    return "oxts" if oxts else "phone"
 
 
 def sign_error_stats(signed: list[dict]) -> dict:
@@ -122,7 +138,13 @@ def sign_error_stats(signed: list[dict]) -> dict:
                         if e.get("s_m") is not None and e.get("abs_m") is not None], float)
         if len(pts) >= 3 and np.ptp(pts[:, 0]) > 50.0:
             slopes.append(100.0 * np.polyfit(pts[:, 0], pts[:, 1], 1)[0])
-    return {"sign_abs_median_m": quantile((e.get("abs_m") for e in errs), 50),
+    rel = [e["rel_m"] for e in errs if e.get("rel_m") is not None and np.isfinite(e["rel_m"])]
+    gps = [r["params"]["gps_white_sigma_m"] for r in signed
+           if r.get("params", {}).get("gps_white_sigma_m") is not None]
+    return {"n_sign_errors": len(errs), "n_journeys": len(signed),
+            "rel_mean_m": float(np.mean(rel)) if rel else None,
+            "gps_white_median_m": quantile(gps, 50),
+            "sign_abs_median_m": quantile((e.get("abs_m") for e in errs), 50),
             "sign_abs_p90_m": quantile((e.get("abs_m") for e in errs), 90),
             "r95_coverage": (sum(covered) / len(covered)) if covered else None,
             "n_covered_of": len(covered),
@@ -237,8 +259,15 @@ def table_summary(report: dict) -> str:
               *(f"{fmt(x['calib_s_median'], 1)} / {fmt(x['calib_s_p90'], 1)}" for x in s)],
              ["total wall s median", *(fmt(x["wall_s_median"], 1) for x in s)]]
     if any(x["signs_mappable"] for x in s):
-        rows += [["signs placed / mappable", *(f"{x['signs_placed']}/{x['signs_mappable']}"
-                                               for x in s)],
+        rows += [["signs placed (all journeys)", *(str(x["signs_placed"]) for x in s)],
+                 ["recall: mappable signs placed (≥ 5 frames, ≥ 12 px)",
+                  *(f"{x['signs_mappable_found']}/{x['signs_mappable']}"
+                    + (f" ({100 * x['signs_mappable_found'] / x['signs_mappable']:.0f} %)"
+                       if x["signs_mappable"] else "") for x in s)],
+                 ["false signs / duplicates (> 3 m from any true sign / a second for one)",
+                  *(f"{x['signs_false']} / {x['signs_duplicate']}" for x in s)],
+                 ["relative (per-frame camera) error mean (m)",
+                  *(fmt(x.get("rel_mean_m"), 3) for x in s)],
                  ["median of journeys' abs median sign error (m)",
                   *(fmt(x["abs_median_m"], 3) for x in s)],
                  ["median of journeys' median facing error (deg)",
@@ -251,6 +280,18 @@ def table_summary(report: dict) -> str:
                     if x.get("r95_coverage") is not None else "–" for x in s)],
                  ["median of journeys' abs error slope (m per 100 m)",
                   *(fmt(x.get("slope_m_per_100m"), 3) for x in s)]]
+        for kind, label in (("oxts", "OXTS-like GPS"), ("phone", "phone-like GPS")):
+            g = [x["by_gps"][kind] for x in s]
+            rows += [[f"{label}: journeys / signs", *(f"{y['n_journeys']} / {y['n_sign_errors']}"
+                                                      for y in g)],
+                     [f"{label}: abs median / p90 (m); GPS white σ median (m)",
+                      *(f"{fmt(y.get('sign_abs_median_m'), 3)} / {fmt(y.get('sign_abs_p90_m'), 3)}"
+                        f"; {fmt(y.get('gps_white_median_m'), 2)}" for y in g)],
+                     [f"{label}: rel mean (m); inside 95 % radius; slope (m/100 m)",
+                      *(f"{fmt(y.get('rel_mean_m'), 3)}; "
+                        + (f"{fmt(100 * y['r95_coverage'], 1)} % of {y['n_covered_of']}"
+                           if y.get("r95_coverage") is not None else "–")
+                        + f"; {fmt(y.get('slope_m_per_100m'), 3)}" for y in g)]]
     return "### Summary\n\n" + md_table(["", *HALVES], rows)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from app.pipeline.alignment import umeyama
 from app.pipeline.geodesy import frame_at
 from app.pipeline.types import JourneyResult
-from bench.evaluate import calibration_errors_pct, sign_errors
+from bench.evaluate import calibration_errors_pct, match_signs, sign_errors, truth_id
 
 ATE_SNIPPET_FRAMES = 5
 
@@ -99,9 +99,23 @@ def trajectory_metrics(result: JourneyResult, truth: dict) -> dict[str, float]:
     }
 
 
+def mappable_ids(truth: dict, min_frames: int, min_height_px: float = 12.0) -> list[str]:
+    """Ids of the true signs the pipeline must place: detected (not missed) in at least
+    ``min_frames`` frames with a box at least ``min_height_px`` tall."""
+    missed = {(m["frame"], str(m.get("track_id", ""))) for m in truth.get("missed_detections", [])}
+    out = []
+    for s in truth["signs"]:
+        frames = {o["frame"] for o in s["observations"]
+                  if (o["frame"], str(s.get("track_id", ""))) not in missed
+                  and ("box_true" not in o or o["box_true"][3] - o["box_true"][1] >= min_height_px)}
+        if len(frames) >= min_frames:
+            out.append(truth_id(s))
+    return out
+
+
 def mappable_signs(truth: dict, min_frames: int) -> int:
-    """True signs detected in at least ``min_frames`` frames: those the pipeline may place."""
-    return sum(len({o["frame"] for o in s["observations"]}) >= min_frames for s in truth["signs"])
+    """How many true signs the pipeline must place (``mappable_ids``)."""
+    return len(mappable_ids(truth, min_frames))
 
 
 def sign_summary(errors: dict[str, dict[str, float]]) -> dict[str, float]:
@@ -133,10 +147,13 @@ def calibration_metrics(result: JourneyResult, truth: dict) -> dict:
 def evaluate_result(result: JourneyResult, truth: dict) -> dict:
     """Calibration, trajectory and sign metrics of one run (JSON-ready)."""
     errors = sign_errors(result, truth)
+    unmatched = match_signs(result, truth)[1]
     return {"calibration": calibration_metrics(result, truth),
             "ate": trajectory_metrics(result, truth),
-            "signs": sign_summary(errors),
-            "sign_errors": errors,
+            "signs": {**sign_summary(errors),
+                      "n_false": sum(u["kind"] == "false" for u in unmatched),
+                      "n_duplicate": sum(u["kind"] == "duplicate" for u in unmatched)},
+            "sign_errors": errors, "unmatched_signs": unmatched,
             "rejected": {r.track_id: r.reason for r in result.rejected}}
 
 

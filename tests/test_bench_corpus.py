@@ -108,12 +108,17 @@ def test_quantiles_over_accepted_calibrations():
 
 def test_sign_rows_only_on_full_runs():
     records = _records()
-    records[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "abs_median_m": 0.4}
-    records[1]["signs"] = {"n_signs": 3, "n_mappable": 3, "abs_median_m": 0.2}
+    records[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "n_mappable_found": 5, "n_false": 1,
+                           "abs_median_m": 0.4}
+    records[1]["signs"] = {"n_signs": 3, "n_mappable": 3, "n_mappable_found": 2, "n_duplicate": 1,
+                           "abs_median_m": 0.2}
     s = cr.half_summary(records[:4])
-    assert (s["signs_placed"], s["signs_mappable"]) == (8, 9)
+    assert (s["signs_placed"], s["signs_mappable"], s["signs_mappable_found"]) == (10, 9, 7)
+    assert (s["signs_false"], s["signs_duplicate"]) == (1, 1)
     assert s["abs_median_m"] == pytest.approx(0.3)
-    assert "signs placed / mappable | 8/9 | 0/0" in cr.table_summary(cr.build_report({}, records))
+    table = cr.table_summary(cr.build_report({}, records))
+    assert "| recall: mappable signs placed (≥ 5 frames, ≥ 12 px) | 7/9 (78 %) | 0/0 |" in table
+    assert "| false signs / duplicates (> 3 m from any true sign / a second for one) | 1 / 1 |" in table
     assert "signs placed" not in cr.table_summary(cr.build_report({}, _records()))
 
 

@@ -14,11 +14,11 @@ from app.fusion import FusionConfig, MapSign
 from app.pipeline.types import Calibration, CameraModel, JourneyResult, Sign
 from app.synth.journey import SynthConfig
 from bench import cli as bench_cli
-from bench.evaluate import sign_errors
+from bench.evaluate import match_signs, sign_errors
 from bench.fusion import (BAR_K, JourneyRun, bar_verdict, evaluate_map, failed_to_calibrate,
                           fusion_journeys, fusion_row, fusion_rows, self_calibration,
                           table_fusion, table_journeys)
-from bench.metrics import truth_frame
+from bench.metrics import mappable_ids, truth_frame
 from bench.plots import plot_fusion
 
 CAMERA = CameraModel(1242, 375, 959.2, 952.9, 694.4, 241.7, -0.369, 0.158)
@@ -212,3 +212,28 @@ def test_quick_fusion_bench_writes_table_json_and_plot(tmp_path):
     assert (tmp_path / report["plot"]).stat().st_size > 10_000
     md = md_path.read_text()
     assert "### Map error vs number of journeys" in md and "| journeys | ok | map signs |" in md
+
+
+def test_signs_without_true_track_ids_are_matched_by_position_false_and_duplicate_counted():
+    """Journeys without track ids get the pipeline's own (auto-k): they are matched to the nearest
+    true sign within 3 m; one farther than that is false, a second for one true sign a duplicate."""
+    truth = _truth()
+    placed = [("auto-0", TRUE_SIGNS["0"][1], (0.5, 0.0, 0.0)),
+              ("auto-1", TRUE_SIGNS["1"][1], (0.0, -1.0, 0.0)),
+              ("auto-2", TRUE_SIGNS["1"][1], (0.3, 0.0, 0.0)),   # the same sign again
+              ("auto-3", TRUE_SIGNS["2"][1], (9.0, 0.0, 0.0))]   # 9 m from any true sign
+    signs = []
+    for track, xyz, off in placed:
+        est = np.array(xyz) + np.asarray(off, float)
+        signs.append(Sign(track, "stop", est, *_latlonalt(truth, est), 0.2, 0.5, []))
+    result = JourneyResult(Calibration(CAMERA, "self"), signs, [], {})
+    matched, unmatched = match_signs(result, truth)
+    assert sorted((s.track_id, t["track_id"]) for s, t in matched) == [("auto-0", "0"),
+                                                                        ("auto-1", "1")]
+    assert sorted((u["track_id"], u["kind"]) for u in unmatched) == [("auto-2", "duplicate"),
+                                                                     ("auto-3", "false")]
+    errors = sign_errors(result, truth)
+    assert errors["auto-0"]["abs_m"] == pytest.approx(0.5, abs=1e-6)
+    assert errors["auto-1"]["truth_id"] == "1"
+    assert mappable_ids(truth, min_frames=5) == ["0", "1", "2"]
+    assert mappable_ids(_truth(frames_seen=4), min_frames=5) == []
