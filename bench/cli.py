@@ -70,7 +70,7 @@ def run_corpus_command(args) -> int:
     try:
         paths = run_corpus(args.corpus, args.out, half=args.half, limit=args.limit,
                            names=[n for n in (args.names or "").split(",") if n] or None,
-                           calibrate_only=args.calibrate_only,
+                           calibrate_only=args.calibrate_only, true_camera=args.true_camera,
                            config_overrides=dict(args.set or []), tag=args.tag,
                            resume=args.resume)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
@@ -91,6 +91,9 @@ def _add_corpus_parser(bench_sub) -> None:
     c.add_argument("--names", help="comma-separated journey names")
     c.add_argument("--calibrate-only", action="store_true",
                    help="drop the detections: the pipeline stops after calibrating")
+    c.add_argument("--true-camera", action="store_true",
+                   help="give the pipeline each journey's true camera instead of self-calibrating "
+                        "(measures sign placement on every journey, those without turns too)")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")

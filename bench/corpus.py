@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from app.pipeline.config import PipelineConfig
-from app.pipeline.types import JourneyResult
+from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report, evaluate
 from bench.metrics import evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
@@ -28,7 +28,7 @@ from bench.runner import finite
 CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
-RUN_IDENTITY = ("corpus", "calibrate_only", "config_overrides")
+RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides")
 
 
 class CorpusPaths(NamedTuple):
@@ -141,13 +141,20 @@ def _why_not(truth_id: str, truth: dict, rejected: dict[str, str]) -> str:
 
 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
-                calibrate_only: bool) -> dict:
-    """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record."""
+                calibrate_only: bool, true_camera: bool = False) -> dict:
+    """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
+    ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
+    that sign placement is measured on every journey, those without turns included."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
+    known = None
+    if true_camera:
+        cam = truth["camera"]
+        known = CameraModel.from_params(cam["width"], cam["height"], cam)
+        config = config.model_copy(update={"reuse_known_calibration": True})
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
         task = RunTask(entry["name"], jdir / "bundle.zip", Path(tmp), config.model_dump(),
-                       calibrate_only=calibrate_only)
+                       known_camera=known, calibrate_only=calibrate_only)
         t0 = time.perf_counter()
         try:
             out = run_isolated(task)
@@ -190,7 +197,8 @@ def _jsonl_path(out_dir: Path, suffix: str, resume: bool) -> Path:
 
 def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                limit: int | None = None, names: list[str] | None = None,
-               calibrate_only: bool = False, config_overrides: dict[str, Any] | None = None,
+               calibrate_only: bool = False, true_camera: bool = False,
+               config_overrides: dict[str, Any] | None = None,
                tag: str = "", resume: bool = False) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
     .jsonl (records), .md, .json and .png into ``out_dir``."""
@@ -205,6 +213,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     meta = {"kind": "meta", **bench_meta(False, config), "corpus": str(corpus_dir.resolve()),
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
+            "true_camera": true_camera,
             "config_overrides": overrides, "tag": tag}
     meta.pop("quick", None)
     old_meta, records = read_jsonl(jsonl) if resume and jsonl.exists() else (None, [])
@@ -225,7 +234,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
         f"already in {jsonl.name}")
     for i, entry in enumerate(todo, start=1):
         log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
-        record = run_journey(corpus_dir, entry, config, calibrate_only)
+        record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"
