@@ -105,4 +105,5 @@ def _uncertainty_parts(sign) -> dict:
         return {}
     return {"cov_tri_h_m2": np.round(u.cov_triangulation_enu[:2, :2], 8).tolist(),
             "georef_noise_m2": float(u.georef.averaged_noise_m2),
-            "georef_floor_weight": float(u.georef.floor_weight)}
+            "georef_floor_weight": float(u.georef.floor_weight),
+            "georef_residual_m2": float(u.georef.residual_m2)}

@@ -118,6 +118,9 @@ class PipelineConfig(BaseModel):
     sign_georef_noise_gain: float = Field(
         1.0, description="gain on the averaged GPS noise (alignment rms^2 / fixes) in a sign's "
                          "covariance")
+    sign_georef_bias_ratio: float = Field(
+        0.0, description="GPS error common to a window (bias, multipath) per horizontal axis, as "
+                         "a share of the window alignment's residual rms")
 
     reuse_known_calibration: bool = Field(
         False, description="skip self-calibration when a calibration of this camera is known")

@@ -59,7 +59,8 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
                                                         f" m > {config.max_sign_std_m} m"))
             continue
         cov_enu = cov_tri + georef.cov_m2(config.sign_georef_floor_m,
-                                          config.sign_georef_noise_gain)
+                                          config.sign_georef_noise_gain,
+                                          config.sign_georef_bias_ratio)
         T = np.concatenate([p.T_world_cam for p in placed])
         frame_ids = [journey.frames[i].frame_id for p in placed for i in p.frame_idx]
         p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
@@ -109,8 +110,8 @@ def combine(placed: list[PlacedPass]) -> tuple[np.ndarray, np.ndarray, float, Ge
     xyz = sum(wi * p.point.xyz_world for wi, p in zip(w, placed))
     cov = sum(wi**2 * p.point.cov_world for wi, p in zip(w, placed))
     # Independent windows: their georeferencing errors average like the positions.
-    georef = GeorefTerms(float(sum(wi**2 * p.georef.averaged_noise_m2 for wi, p in zip(w, placed))),
-                         float(sum(wi**2 * p.georef.floor_weight for wi, p in zip(w, placed))))
+    georef = GeorefTerms(*(float(sum(wi**2 * getattr(p.georef, term) for wi, p in zip(w, placed)))
+                           for term in ("averaged_noise_m2", "floor_weight", "residual_m2")))
     n = [len(p.frame_idx) for p in placed]
     rms_px = float(np.sqrt(sum(k * p.point.rms_px**2 for k, p in zip(n, placed)) / sum(n)))
     return xyz, cov, rms_px, georef

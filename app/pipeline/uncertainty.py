@@ -6,9 +6,13 @@ detections on fixed poses: a few centimetres, while the real errors are tenths o
 sign inherits the error of the window alignment that placed its poses: the GPS noise the Umeyama
 fit averages (``alignment_rms_m`` over ``n`` fixes) and the part of the GPS error it cannot
 average because it is common to the whole window (a receiver's slowly drifting bias, multipath
-along a street): ``georef_floor_m`` per horizontal axis, twice that vertically (GPS altitude is
-about twice as noisy). Both enter as an isotropic term; the floor and the gain on the averaged
-noise are knobs of ``PipelineConfig`` chosen on the corpus's tuning half.
+along a street): ``georef_floor_m`` per horizontal axis, plus ``bias_ratio`` times the
+alignment's own residual RMS, twice that vertically (GPS altitude is about twice as noisy). The
+common part cannot be seen inside one window, but it grows with the receiver's noise: on the
+corpus, journeys whose fixes scatter by 2 m also wander by metres (phones, multipath), while an
+OXTS-like receiver's 0.3 m comes with a bias of tenths. All enter as an isotropic term; the floor,
+the ratio and the gain on the averaged noise are knobs of ``PipelineConfig`` chosen on the
+corpus's tuning half (``bench/uncertainty_fit.py``).
 """
 
 from __future__ import annotations
@@ -25,19 +29,26 @@ from scipy.stats import norm
 @dataclass(frozen=True)
 class GeorefTerms:
     """What the window alignments add to a sign's error, before the knobs weigh it: the averaged
-    GPS noise ``sum w_i^2 rms_i^2 / n_i`` (m^2) and the weight ``sum w_i^2`` of the floor, over the
-    passes ``i`` combined with weights ``w_i`` (one pass: ``rms^2 / n`` and 1)."""
+    GPS noise ``sum w_i^2 rms_i^2 / n_i`` (m^2), the weight ``sum w_i^2`` of the floor and the
+    residual ``sum w_i^2 rms_i^2`` (m^2), over the passes ``i`` combined with weights ``w_i`` (one
+    pass: ``rms^2 / n``, 1 and ``rms^2``)."""
 
     averaged_noise_m2: float
     floor_weight: float
+    residual_m2: float = 0.0
 
     @staticmethod
     def of_alignment(alignment_rms_m: float, n_fixes: int) -> "GeorefTerms":
-        return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0)
+        return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0, alignment_rms_m**2)
 
-    def cov_m2(self, floor_m: float, noise_gain: float) -> np.ndarray:
+    def horizontal_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0) -> float:
+        """Variance per horizontal axis (m^2) these terms add, weighed by the knobs."""
+        return (noise_gain * self.averaged_noise_m2 + self.floor_weight * floor_m**2
+                + bias_ratio**2 * self.residual_m2)
+
+    def cov_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0) -> np.ndarray:
         """(3, 3) ENU covariance; altitude counts twice the horizontal error."""
-        h = noise_gain * self.averaged_noise_m2 + self.floor_weight * floor_m**2
+        h = self.horizontal_m2(floor_m, noise_gain, bias_ratio)
         return np.diag([h, h, 4.0 * h])
 
 
