@@ -80,6 +80,25 @@ def run_corpus_command(args) -> int:
     return 0
 
 
+def run_uncertainty_command(args) -> int:
+    from app.pipeline.config import PipelineConfig
+    from bench.corpus import read_jsonl
+    from bench.uncertainty_fit import Knobs, report
+
+    records = []
+    for path in args.jsonl:
+        if not path.is_file():
+            raise SystemExit(f"signmap bench uncertainty: {path} does not exist")
+        records += read_jsonl(path)[1]
+    c = PipelineConfig()
+    fitted, table = report(records, Knobs(c.sign_georef_floor_m, c.sign_georef_noise_gain,
+                                          c.sign_georef_bias_ratio))
+    print(table)
+    print(f"\nfitted on the tuning half: --set sign_georef_floor_m={fitted.floor_m:.2f} "
+          f"--set sign_georef_bias_ratio={fitted.bias_ratio:.2f}")
+    return 0
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -197,6 +216,15 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    u = bench_sub.add_parser(
+        "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
+        description="Reads the JSONL of a full `signmap bench corpus` run; chooses "
+        "sign_georef_floor_m and sign_georef_bias_ratio on its tuning half so that 95 %% of "
+        "signs lie inside their 95 %% radius for OXTS-like and phone-like GPS alike; prints the "
+        "coverage per half with the current and the fitted knobs.")
+    u.add_argument("jsonl", type=Path, nargs="+",
+                   help="<date>-corpus<tag>.jsonl of full runs (several: their journeys pooled)")
+    u.set_defaults(func=run_uncertainty_command)
     _add_map_parser(bench_sub)
     from bench.api_load import add_parser as add_api_parser
 

@@ -1,0 +1,115 @@
+"""Choose the sign-uncertainty knobs on a corpus run's tuning half and check them on its check half.
+
+A full ``signmap bench corpus`` run records, per placed sign, its horizontal error against the
+truth and the terms of its covariance before the knobs weigh them (``bench.evaluate``): the
+triangulation's (2, 2) block, the averaged GPS noise, the floor weight and the alignment residual
+(``app.pipeline.uncertainty.GeorefTerms``). That is enough to recompute every sign's 95 % radius
+for any knob values without running the pipeline again.
+
+``fit`` picks ``sign_georef_floor_m`` and ``sign_georef_bias_ratio`` (the gain on the averaged
+noise stays 1: that term is the alignment's own statistics) so that, on the tuning half, the
+share of signs inside their radius is as close to 95 % for OXTS-like journeys as for phone-like
+ones: one knob alone cannot be honest for both, as their GPS errors differ tenfold.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.pipeline.uncertainty import GeorefTerms, horizontal_radius_m
+from bench.corpus_report import GPS_KINDS, gps_kind
+
+TARGET = 0.95
+
+
+@dataclass(frozen=True)
+class Knobs:
+    floor_m: float
+    noise_gain: float = 1.0
+    bias_ratio: float = 0.0
+
+
+@dataclass(frozen=True)
+class SignTerms:
+    """One placed sign of a corpus run: its horizontal error and its covariance terms."""
+
+    half: str
+    gps: str
+    h_err_m: float
+    cov_tri_h_m2: np.ndarray  # (2, 2)
+    georef: GeorefTerms
+
+    def r95_m(self, knobs: Knobs) -> float:
+        h = self.georef.horizontal_m2(knobs.floor_m, knobs.noise_gain, knobs.bias_ratio)
+        return horizontal_radius_m(self.cov_tri_h_m2 + h * np.eye(2))
+
+
+def sign_terms(records: list[dict]) -> list[SignTerms]:
+    """Every sign of ``records`` (corpus JSONL journey records) that carries its terms."""
+    out = []
+    for r in records:
+        for e in (r.get("sign_errors") or {}).values():
+            if "georef_noise_m2" not in e or e.get("h_err_m") is None:
+                continue
+            out.append(SignTerms(r.get("half", ""), gps_kind(r), float(e["h_err_m"]),
+                                 np.asarray(e["cov_tri_h_m2"], float),
+                                 GeorefTerms(e["georef_noise_m2"], e["georef_floor_weight"],
+                                             e.get("georef_residual_m2", 0.0))))
+    return out
+
+
+# Standard normal pairs shared by every call: whether a sign's error lies inside its 95 % radius
+# is whether the Gaussian puts at most 95 % of its mass within that error, a Monte Carlo mean
+# vectorised over signs (the exact radius, ``r95_m``, costs an integral per sign and knob value).
+_Z2 = np.random.default_rng(0).standard_normal((4000, 2)) ** 2
+
+
+def coverage(signs: list[SignTerms], knobs: Knobs) -> tuple[float | None, int]:
+    """(share of ``signs`` whose true position is inside their 95 % radius, how many signs)."""
+    if not signs:
+        return None, 0
+    # Adding h * I to the triangulation block adds h to both of its eigenvalues.
+    lam = np.array([np.clip(np.linalg.eigvalsh(s.cov_tri_h_m2), 0.0, None) for s in signs])
+    h = np.array([s.georef.horizontal_m2(knobs.floor_m, knobs.noise_gain, knobs.bias_ratio)
+                  for s in signs])
+    lam = np.clip(lam + h[:, None], 1e-12, None)                       # (S, 2)
+    err2 = np.array([s.h_err_m**2 for s in signs])                     # (S,)
+    mass_within_err = np.mean(_Z2 @ lam.T <= err2[None, :], axis=0)     # (S,)
+    return float(np.mean(mass_within_err <= TARGET)), len(signs)
+
+
+def fit(signs: list[SignTerms], floors_m=np.arange(0.0, 0.61, 0.05),
+        ratios=np.arange(0.0, 2.51, 0.1)) -> Knobs:
+    """The knobs that bring each GPS kind's coverage on ``signs`` nearest to 95 % (a grid: the
+    coverage is a step function of the knobs); ties go to the smallest radii."""
+    groups = [[s for s in signs if s.gps == kind] for kind in GPS_KINDS]
+    groups = [g for g in groups if g]
+
+    def cost(k: Knobs) -> tuple[float, float]:
+        miss = sum((coverage(g, k)[0] - TARGET) ** 2 for g in groups)
+        return round(miss, 6), k.floor_m + k.bias_ratio
+    candidates = [Knobs(float(f), 1.0, float(r)) for f, r in itertools.product(floors_m, ratios)]
+    return min(candidates, key=cost)
+
+
+def report(records: list[dict], current: Knobs) -> tuple[Knobs, str]:
+    """(knobs fitted on the tuning half, a markdown table of coverage per half and GPS kind with
+    the current and the fitted knobs)."""
+    signs = sign_terms(records)
+    fitted = fit([s for s in signs if s.half == "tuning"])
+    rows = []
+    for half in ("tuning", "check"):
+        for kind in (*GPS_KINDS, "all"):
+            chosen = [s for s in signs if s.half == half and kind in ("all", s.gps)]
+            cells = []
+            for knobs in (current, fitted):
+                share, n = coverage(chosen, knobs)
+                cells.append("–" if share is None else f"{100 * share:.1f} % of {n}")
+            rows.append(f"| {half} | {kind} | {cells[0]} | {cells[1]} |")
+    head = (f"| half | GPS | inside r95, current (floor {current.floor_m:.2f} m, ratio "
+            f"{current.bias_ratio:.2f}) | inside r95, fitted (floor {fitted.floor_m:.2f} m, "
+            f"ratio {fitted.bias_ratio:.2f}) |\n| --- | --- | --- | --- |")
+    return fitted, "\n".join([head, *rows])
