@@ -111,6 +111,9 @@ class PipelineConfig(BaseModel):
     max_reprojection_rms_px: float = 4.0
     max_sign_std_m: float = 2.0
     min_ray_angle_deg: float = 1.0
+    merge_fragments_within_m: float = Field(
+        1.0, description="tracks of one class that share no frame and are placed this close "
+                         "(horizontally) are one sign whose track broke")
     # A placed sign's uncertainty (app/pipeline/uncertainty.py): chosen on the corpus tuning half.
     sign_georef_floor_m: float = Field(
         0.15, description="GPS error per horizontal axis that a window alignment cannot average "

@@ -44,6 +44,7 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
         except TriangulationError as exc:
             outcome = exc.reason
         passes.setdefault(track.track_id, []).append(outcome)
+    passes = merge_fragments(passes, classes, config.merge_fragments_within_m)
     signs: list[Sign] = []
     rejected: list[RejectedSign] = []
     for track_id, outcomes in passes.items():
@@ -73,6 +74,38 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
             SignUncertainty(cov_tri, georef),
         ))
     return signs, rejected
+
+
+def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str, str],
+                    within_m: float) -> dict[str, list[PlacedPass | str]]:
+    """The passes of tracks that are one sign, joined under the id of the one seen first.
+
+    Tracks the pipeline associates itself (a bundle without track ids) break where the detector
+    missed the sign for a few frames, and each piece would be placed as a sign of its own: on the
+    corpus, 7 duplicates in 173 placed signs, each within 0.6 m of its true sign. Two tracks are
+    one sign when they have the same class, never share a frame (one sign gives one box per
+    frame) and their placed positions lie within ``within_m`` horizontally.
+    """
+    placed = {t: [p for p in outs if isinstance(p, PlacedPass)] for t, outs in passes.items()}
+    ids = sorted((t for t in placed if placed[t]),
+                 key=lambda t: min(int(p.frame_idx.min()) for p in placed[t]))
+    xy = {t: combine(placed[t])[0][:2] for t in ids}
+    frames = {t: set(np.concatenate([p.frame_idx for p in placed[t]]).tolist()) for t in ids}
+    into: dict[str, str] = {}
+    for k, a in enumerate(ids):
+        if a in into:
+            continue
+        for b in ids[k + 1:]:
+            if (b not in into and classes[a] == classes[b] and not frames[a] & frames[b]
+                    and np.linalg.norm(xy[a] - xy[b]) <= within_m):
+                into[b] = a
+                frames[a] |= frames[b]
+    if not into:
+        return passes
+    merged = {t: list(outs) for t, outs in passes.items() if t not in into}
+    for b, a in into.items():
+        merged[a] += passes[b]
+    return merged
 
 
 def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
