@@ -24,11 +24,11 @@ from typing import Iterator
 
 import httpx
 import numpy as np
-from sqlalchemy import create_engine, func, insert, select, text
+from sqlalchemy import func, insert, select
 
 from app.pipeline.types import CameraModel
 from app.service.auth import create_key
-from app.service.db import get_engine, session_scope, upgrade
+from app.service.db import session_scope, temporary_database, upgrade
 from app.service.models import Journey, JourneySign, MapSign, utc_now
 from app.settings import Settings
 from app.synth.journey import SynthConfig
@@ -105,21 +105,6 @@ def _wait_healthy(base_url: str, proc: subprocess.Popen, log: Path, timeout_s: f
 
 
 @contextmanager
-def _pg_database(admin_url: str, name: str) -> Iterator[str]:
-    admin = create_engine(admin_url, isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f'CREATE DATABASE "{name}"'))
-    url = admin.url.set(database=name).render_as_string(hide_password=False)
-    try:
-        yield url
-    finally:
-        get_engine(url).dispose()
-        with admin.connect() as conn:
-            conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-        admin.dispose()
-
-
-@contextmanager
 def _redis_queue(redis_url: str, queue: str) -> Iterator[None]:
     import redis
 
@@ -144,7 +129,7 @@ def running_service(backend: str, run_dir: Path, postgres_url: str, redis_url: s
                       log_level="INFO")
         if backend == "postgres":
             values.update(database_url=stack.enter_context(
-                _pg_database(postgres_url, f"signmap_bench_api_{tag}")),
+                temporary_database(postgres_url, f"signmap_bench_api_{tag}")),
                 broker_url=redis_url, celery_queue=f"signmap_bench_api_{tag}")
             stack.enter_context(_redis_queue(redis_url, values["celery_queue"]))
         settings = Settings(**values)

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Iterator, NoReturn
 
 import pytest
-from sqlalchemy import create_engine, func, select, text
+from sqlalchemy import func, make_url, select
 
 from app.service.auth import create_key, key_sha256
-from app.service.db import get_engine, session_scope, upgrade
+from app.service.db import session_scope, temporary_database, upgrade
 from app.service.models import ApiKey, Journey
 from app.settings import Settings
 from tests.real_services import register_real_service_skips, service_unavailable
@@ -51,21 +51,16 @@ def pytest_configure(config) -> None:
 @contextmanager
 def _pg_database(name: str) -> Iterator[str]:
     """A new PostgreSQL database ``name``, migrated with Alembic, dropped at the end."""
-    admin = create_engine(PG_URL, isolation_level="AUTOCOMMIT")
+    created = False
     try:
-        with admin.connect() as conn:
-            conn.execute(text(f'CREATE DATABASE "{name}"'))
-    except Exception as exc:  # noqa: BLE001 - any failure means "no PostgreSQL here"
-        _unavailable("PostgreSQL", admin.url.render_as_string(hide_password=True), exc)
-    url = admin.url.set(database=name).render_as_string(hide_password=False)
-    try:
-        upgrade(url)
-        yield url
-    finally:
-        get_engine(url).dispose()
-        with admin.connect() as conn:
-            conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-        admin.dispose()
+        with temporary_database(PG_URL, name) as url:
+            created = True
+            upgrade(url)
+            yield url
+    except Exception as exc:  # noqa: BLE001 - failing to create it means "no PostgreSQL here"
+        if created:
+            raise
+        _unavailable("PostgreSQL", make_url(PG_URL).render_as_string(hide_password=True), exc)
 
 
 @pytest.fixture(scope="session")

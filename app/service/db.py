@@ -11,7 +11,7 @@ from typing import Iterator
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -64,3 +64,22 @@ def upgrade(url: str, revision: str = "head") -> None:
     config.set_main_option("script_location", str(REPO_ROOT / "migrations"))
     config.attributes["url"] = url
     command.upgrade(config, revision)
+
+
+@contextmanager
+def temporary_database(admin_url: str, name: str) -> Iterator[str]:
+    """A new, empty PostgreSQL database ``name`` on the server of ``admin_url``, dropped (with any
+    connections still open to it) at the end; yields its URL."""
+    admin = create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            conn.execute(text(f'CREATE DATABASE "{name}"'))
+        url = admin.url.set(database=name).render_as_string(hide_password=False)
+        try:
+            yield url
+        finally:
+            get_engine(url).dispose()
+            with admin.connect() as conn:
+                conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+    finally:
+        admin.dispose()
