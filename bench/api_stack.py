@@ -6,14 +6,8 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import re
 import secrets
-import signal
-import socket
-import subprocess
-import sys
-import time
 import zipfile
 from collections import Counter
 from contextlib import ExitStack, contextmanager
@@ -22,7 +16,6 @@ from datetime import timedelta
 from pathlib import Path
 from typing import Iterator
 
-import httpx
 import numpy as np
 from sqlalchemy import func, insert, select
 
@@ -32,9 +25,9 @@ from app.service.db import session_scope, temporary_database, upgrade
 from app.service.models import Journey, JourneySign, MapSign, utc_now
 from app.settings import Settings
 from app.synth.journey import SynthConfig
+from bench.serve import child_env, serve, signmap_child
 from bench.suite import JourneySpec, ensure_journey, quick_suite
 
-REPO = Path(__file__).resolve().parents[1]
 # The seeded map: signs spread over a city-sized box, away from the rendered journeys' world.
 CITY = (9.0, 48.0, 9.1, 48.07)  # minlon, minlat, maxlon, maxlat
 STREET = (9.0, 48.0, 9.004, 48.003)
@@ -54,54 +47,6 @@ class Service:
     fleet_key: str
     reader_key: str
     logs: list[Path]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _env(settings: Settings) -> dict[str, str]:
-    """The environment that makes a child process's Settings() equal ``settings``."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("SIGNMAP_")}
-    env.update(settings.as_env())
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
-    return env
-
-
-@contextmanager
-def _process(argv: list[str], settings: Settings, log: Path) -> Iterator[subprocess.Popen]:
-    """A ``signmap`` child in its own process group, ended (with its children) on exit."""
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *argv], cwd=REPO,
-                            env=_env(settings), stdout=log.open("ab"),
-                            stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        yield proc
-    finally:
-        for sig, wait_s in ((signal.SIGTERM, 30), (signal.SIGKILL, 10)):
-            if proc.poll() is not None:
-                break
-            try:
-                os.killpg(proc.pid, sig)
-                proc.wait(wait_s)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
-                pass
-
-
-def _wait_healthy(base_url: str, proc: subprocess.Popen, log: Path, timeout_s: float = 60) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"signmap serve exited ({proc.returncode}): "
-                               f"{log.read_text()[-2000:]}")
-        try:
-            if httpx.get(f"{base_url}/api/v1/health", timeout=2).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
-    raise RuntimeError(f"signmap serve not healthy after {timeout_s} s: {log.read_text()[-2000:]}")
 
 
 @contextmanager
@@ -137,16 +82,12 @@ def running_service(backend: str, run_dir: Path, postgres_url: str, redis_url: s
         seed_map(settings.effective_database_url, n_map_signs)
         with session_scope(settings.effective_database_url) as session:
             fleet, reader = create_key(session, "fleet", "bench"), create_key(session, "reader")
-        port = _free_port()
         logs = [run_dir / f"{backend}-api.log"]
-        server = stack.enter_context(_process(
-            ["serve", "--host", "127.0.0.1", "--port", str(port)], settings, logs[0]))
-        base_url = f"http://127.0.0.1:{port}"
-        _wait_healthy(base_url, server, logs[0])
+        base_url = stack.enter_context(serve(child_env(settings), logs[0]))
         if backend == "postgres":
             logs.append(run_dir / f"{backend}-worker.log")
-            stack.enter_context(_process(["worker", "--hostname", f"bench-{tag}@%h"], settings,
-                                         logs[1]))
+            stack.enter_context(signmap_child(["worker", "--hostname", f"bench-{tag}@%h"],
+                                                child_env(settings), logs[1]))
         yield Service(backend, base_url, settings, fleet, reader, logs)
 
 
@@ -238,3 +179,4 @@ _ENDED = re.compile(r"journey (\S+): (?:done in |failed at |internal error durin
 def _ended_id(line: str) -> list[str]:
     """The journey id of a job's last log line (app.service.jobs: done, failed or crashed)."""
     return _ENDED.findall(line)
+

@@ -9,10 +9,7 @@ import asyncio
 import math
 import os
 import secrets
-import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from contextlib import contextmanager
@@ -24,6 +21,7 @@ import httpx
 import numpy as np
 
 from bench.map_data import CITY_SIGMA_DEG, N_CITIES, SyntheticMap
+from bench.serve import serve as bench_serve
 
 REPO = Path(__file__).resolve().parents[1]
 HEALTH_EVERY_S = 0.1
@@ -48,12 +46,6 @@ class Timings:
                 "note": self.note}
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @contextmanager
 def serve(database_url: str, admin_key: str, env_extra: dict | None = None) -> Iterator[str]:
     """A real ``signmap serve`` on a free port of 127.0.0.1 (no worker); yields its base URL."""
@@ -62,31 +54,8 @@ def serve(database_url: str, admin_key: str, env_extra: dict | None = None) -> I
         env.update(SIGNMAP_DATA_DIR=tmp, SIGNMAP_DATABASE_URL=database_url,
                    SIGNMAP_ADMIN_KEY=admin_key, SIGNMAP_EMBEDDED_WORKER="false",
                    SIGNMAP_LOG_LEVEL="WARNING", PYTHONPATH=str(REPO), **(env_extra or {}))
-        port = _free_port()
-        log = Path(tmp) / "serve.log"
-        with log.open("wb") as out:
-            proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--host",
-                                     "127.0.0.1", "--port", str(port)], cwd=REPO, env=env,
-                                    stdout=out, stderr=subprocess.STDOUT)
-        base = f"http://127.0.0.1:{port}"
-        try:
-            deadline = time.monotonic() + 60
-            while True:
-                try:
-                    if httpx.get(f"{base}/api/v1/health", timeout=5).status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    pass
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"signmap serve did not start:\n{log.read_text()[-2000:]}")
-                time.sleep(0.3)
+        with bench_serve(env, Path(tmp) / "serve.log") as base:
             yield base
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
 
 
 def tile_of(lon: float, lat: float, z: int) -> tuple[int, int, int]:

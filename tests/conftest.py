@@ -29,6 +29,7 @@ from app.service.auth import create_key, key_sha256
 from app.service.db import session_scope, temporary_database, upgrade
 from app.service.models import ApiKey, Journey
 from app.settings import Settings
+from bench.serve import child_env
 from tests.real_services import register_real_service_skips, service_unavailable
 
 ADMIN_KEY = "test-admin-" + secrets.token_hex(8)
@@ -211,8 +212,7 @@ def auth(key: str) -> dict[str, str]:
 
 def settings_env(settings: Settings) -> dict[str, str]:
     """The environment that makes a child process's Settings() equal ``settings``."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("SIGNMAP_")}
-    return {**env, **settings.as_env()}
+    return child_env(settings)
 
 
 class CeleryWorker:

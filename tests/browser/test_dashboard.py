@@ -7,10 +7,6 @@ test-output/.
 
 from __future__ import annotations
 
-import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import NoReturn
 
@@ -20,6 +16,7 @@ import pytest
 from app.service.auth import create_key
 from app.service.db import session_scope
 from app.service.models import Journey
+from bench.serve import serve
 from tests.browser.seed import add_journey, set_progress
 from tests.conftest import ADMIN_KEY, REPO, auth, make_settings, settings_env
 from tests.real_services import service_unavailable
@@ -48,37 +45,13 @@ def browser():
         browser.close()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """`signmap serve` on a free port; yields (base url, settings). Its tiles URL is unreachable."""
     settings = make_settings(tmp_path_factory.mktemp("admin") / "data", embedded_worker=False,
                              map_tile_url="http://127.0.0.1:9/{z}/{x}/{y}.png")
-    port = _free_port()
-    log = (settings.data_dir.parent / "serve.log").open("wb")
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--host", "127.0.0.1",
-                             "--port", str(port)], cwd=REPO, env=settings_env(settings),
-                            stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(f"{base}/api/v1/health").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None and time.monotonic() < deadline, "signmap serve did not start"
-            time.sleep(0.3)
+    with serve(settings_env(settings), settings.data_dir.parent / "serve.log") as base:
         yield base, settings
-    finally:
-        proc.terminate()
-        proc.wait(20)
 
 
 def shot(page, name: str) -> None:
