@@ -8,8 +8,13 @@ for any knob values without running the pipeline again.
 
 ``fit`` picks ``sign_georef_floor_m`` and ``sign_georef_bias_ratio`` (the gain on the averaged
 noise stays 1: that term is the alignment's own statistics) so that, on the tuning half, the
-share of signs inside their radius is as close to 95 % for OXTS-like journeys as for phone-like
-ones: one knob alone cannot be honest for both, as their GPS errors differ tenfold.
+share of all signs inside their radius is nearest 95 %. A floor alone cannot do it, as
+OXTS-like and phone-like GPS errors differ tenfold; the ratio follows the receiver. Two knobs
+cannot make each kind honest on its own: on the corpus of 2026-11-25 the OXTS-like signs come
+out over-covered and the phone-like ones under-covered (their reconstructions break more often
+than their alignment residual shows), which a third term would have to model; asking for each
+kind at 95 % instead drove the ratio to 2 and the check half to 100 %. The report gives each
+GPS kind apart.
 """
 
 from __future__ import annotations
@@ -83,14 +88,15 @@ def coverage(signs: list[SignTerms], knobs: Knobs) -> tuple[float | None, int]:
 
 def fit(signs: list[SignTerms], floors_m=np.arange(0.0, 0.61, 0.05),
         ratios=np.arange(0.0, 2.51, 0.1)) -> Knobs:
-    """The knobs that bring each GPS kind's coverage on ``signs`` nearest to 95 % (a grid: the
-    coverage is a step function of the knobs); ties go to the smallest radii."""
-    groups = [[s for s in signs if s.gps == kind] for kind in GPS_KINDS]
-    groups = [g for g in groups if g]
+    """The knobs that bring the coverage on ``signs`` nearest to 95 %; among equals, those that
+    bring each GPS kind nearest to 95 %, then the smallest radii (a grid: the coverage is a step
+    function of the knobs)."""
+    groups = [g for kind in GPS_KINDS if (g := [s for s in signs if s.gps == kind])]
 
-    def cost(k: Knobs) -> tuple[float, float]:
-        miss = sum((coverage(g, k)[0] - TARGET) ** 2 for g in groups)
-        return round(miss, 6), k.floor_m + k.bias_ratio
+    def cost(k: Knobs) -> tuple[float, float, float]:
+        per_kind = sum((coverage(g, k)[0] - TARGET) ** 2 for g in groups)
+        return (round(abs(coverage(signs, k)[0] - TARGET), 4), round(per_kind, 6),
+                k.floor_m + k.bias_ratio)
     candidates = [Knobs(float(f), 1.0, float(r)) for f, r in itertools.product(floors_m, ratios)]
     return min(candidates, key=cost)
 
