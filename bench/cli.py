@@ -99,6 +99,16 @@ def run_uncertainty_command(args) -> int:
     return 0
 
 
+def run_corpus_compare_command(args) -> int:
+    from bench.corpus_compare import compare, pooled
+
+    missing = [str(p) for p in (*args.before, *args.after) if not p.is_file()]
+    if missing:
+        raise SystemExit(f"signmap bench corpus-compare: no such file: {', '.join(missing)}")
+    print(compare(pooled(args.before), pooled(args.after)))
+    return 0
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -225,6 +235,13 @@ def add_parsers(sub) -> None:
     u.add_argument("jsonl", type=Path, nargs="+",
                    help="<date>-corpus<tag>.jsonl of full runs (several: their journeys pooled)")
     u.set_defaults(func=run_uncertainty_command)
+    cc = bench_sub.add_parser(
+        "corpus-compare", help="two sets of corpus runs side by side (before / after a change)",
+        description="Prints the summary rows of the corpus runs in --before and in --after side "
+        "by side, per half, over the journeys both ran.")
+    cc.add_argument("--before", type=Path, nargs="+", required=True, help="JSONL files")
+    cc.add_argument("--after", type=Path, nargs="+", required=True, help="JSONL files")
+    cc.set_defaults(func=run_corpus_compare_command)
     _add_map_parser(bench_sub)
     from bench.api_load import add_parser as add_api_parser
 

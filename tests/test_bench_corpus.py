@@ -213,3 +213,16 @@ def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):
     again = run_corpus(corpus, tmp_path / "out", calibrate_only=True, limit=1, tag="test",
                        resume=True)
     assert again.jsonl == paths.jsonl and len(read_jsonl(paths.jsonl)[1]) == 1
+
+
+def test_corpus_compare_puts_before_and_after_side_by_side(tmp_path):
+    from bench.corpus_compare import compare
+
+    before = _records()
+    after = [dict(r) for r in _records()]
+    after[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "n_mappable_found": 5, "abs_median_m": 0.4}
+    table = compare(before, after)
+    assert table.startswith(f"{len(before)} journeys run on both sides.")
+    assert "| journeys run | 4 | 4 | 3 | 3 |" in table
+    # A row only the after side has is shown, with a dash before.
+    assert "| recall: mappable signs placed (≥ 5 frames, ≥ 12 px) | – | 5/6 (83 %) | – | 0/0 |" in table

@@ -1,0 +1,41 @@
+"""Before / after on the same corpus: the summary rows of two sets of corpus runs side by side
+(``signmap bench corpus-compare``). Each side may pool several JSONL files, e.g. two corpora of
+consecutive seeds rendered apart, so a change is judged on every journey that both sides ran."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bench import corpus_report
+from bench.corpus import read_jsonl
+
+
+def pooled(paths: list[Path]) -> list[dict]:
+    records = []
+    for path in paths:
+        records += read_jsonl(path)[1]
+    return records
+
+
+def _rows(records: list[dict]) -> dict[str, list[str]]:
+    """Summary table rows of ``records``: label -> [tuning cell, check cell]."""
+    table = corpus_report.table_summary(corpus_report.build_report({}, records))
+    rows = {}
+    for line in table.splitlines()[4:]:  # title, blank line, header, rule
+        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def compare(before: list[dict], after: list[dict]) -> str:
+    """A markdown table: every summary row, before and after, tuning and check half."""
+    names = sorted({r["name"] for r in before} & {r["name"] for r in after})
+    b, a = _rows([r for r in before if r["name"] in names]), _rows(
+        [r for r in after if r["name"] in names])
+    lines = [f"{len(names)} journeys run on both sides.", "",
+             "|  | before, tuning | after, tuning | before, check | after, check |",
+             "| --- | --- | --- | --- | --- |"]
+    for label in [*b, *(k for k in a if k not in b)]:
+        (bt, bc), (at, ac) = b.get(label, ["–", "–"]), a.get(label, ["–", "–"])
+        lines.append(f"| {label} | {bt} | {at} | {bc} | {ac} |")
+    return "\n".join(lines)
