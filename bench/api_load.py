@@ -9,6 +9,8 @@ and health checks. Then, until every job has ended, the clients keep reading the
 of request: count, errors (5xx, unexpected status, connection errors), p50/p95/p99/max latency;
 and what became of every accepted upload, from the database and the job logs: each must end done
 or failed exactly once (one row, one attempt, one ending), re-uploads must name the same journey.
+Then the same clients send N distinct big uploads (40 MB by default) while the worker(s) run their
+jobs: uploads accepted per second, MB/s, latency per upload, and the same account of each upload.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from app.settings import Settings
+from bench import api_uploads
 from bench.api_stack import (CITY, STREET, Service, account, bundles, journey_states,
                               running_service, variant)
 from bench.tables import md_table
@@ -44,6 +48,8 @@ class Options:
     requests: int = 400  # reads, polls and health checks (uploads come on top)
     uploads: int = 16  # new fail-fast uploads; each is also re-uploaded once in 4
     processed: int = 2  # rendered journeys with a turn, really processed
+    big_uploads: int = 16  # distinct big fail-fast uploads after the load (0: none)
+    big_upload_mb: float = 40.0
     drain_timeout_s: float = 600.0
     map_signs: int = 2000
     seed: int = 0
@@ -54,7 +60,7 @@ class Options:
 
 
 QUICK = dict(clients=4, requests=40, uploads=3, processed=0, drain_timeout_s=180.0,
-             map_signs=300)
+             map_signs=300, big_uploads=4, big_upload_mb=8.0)
 
 
 @dataclass
@@ -194,7 +200,33 @@ async def drain(service: Service, accepted: set[str], timeout_s: float, clients:
     return samples, time.monotonic() - t0
 
 
-def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_dir: Path) -> dict:
+def run_big_uploads(service: Service, big: list[bytes], opts: Options) -> dict:
+    """Send the ``big`` bundles from ``opts.clients`` clients, wait until their jobs have ended,
+    account for them (the worker(s) run each job as soon as its upload is queued)."""
+    load_before = os.getloadavg()[0]
+    requests = [Request(api_uploads.KIND, "POST", "/api/v1/journeys", (202,), b) for b in big]
+    samples, sent, seconds = asyncio.run(load(service, requests, opts.clients,
+                                              random.Random(opts.seed)))
+    accepted = Counter(s.journey_id for s in samples if s.status == 202 and s.journey_id)
+    # No readers (0 clients) while waiting: the figures are the uploads' and their jobs'.
+    _, drain_s = asyncio.run(drain(service, set(accepted), opts.drain_timeout_s, 0))
+    jobs = account(service, accepted, {})
+    log_text = service.logs[0].read_text(errors="replace")
+    accepted_bytes = sum(len(r.payload or b"") for s, r in zip(samples, sent)
+                         if s.journey_id in accepted)
+    return {"mb_each": round(len(big[0]) / api_uploads.MB, 1),
+            "frames_each": api_uploads.n_frames(big[0]),
+            "stats": api_uploads.summary(
+                [s.seconds for s in samples], sum(s.error is not None for s in samples),
+                accepted_bytes, len(accepted), seconds,
+                api_uploads.validation_s(log_text, set(accepted))),
+            "drain_s": round(drain_s, 1), "jobs": jobs,
+            "loadavg": [round(load_before, 1), round(os.getloadavg()[0], 1)],
+            "errors": [asdict(s) for s in samples if s.error][:20]}
+
+
+def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_dir: Path,
+                big: list[bytes] | None = None) -> dict:
     rng = random.Random(opts.seed)
     load_before = os.getloadavg()[0]
     with running_service(backend, run_dir, opts.postgres_url, opts.redis_url,
@@ -209,12 +241,16 @@ def run_backend(backend: str, opts: Options, turn: bytes, straight: bytes, run_d
         drained, drain_s = asyncio.run(drain(service, set(accepted), opts.drain_timeout_s,
                                              opts.clients))
         jobs = account(service, accepted, repeats)
+        load_after = os.getloadavg()[0]
+        # After the load above has drained, so that its figures stay what they were without it.
+        uploads = run_big_uploads(service, big, opts) if big else None
     return {"backend": backend, "load_s": round(load_s, 2),
             "load_rps": round(len(samples) / load_s, 1), "drain_s": round(drain_s, 1),
             # The machine's 1-minute load average before and after: other work skews latency.
-            "loadavg": [round(load_before, 1), round(os.getloadavg()[0], 1)],
+            "loadavg": [round(load_before, 1), round(load_after, 1)],
             "stats": stats(samples + drained), "jobs": jobs,
-            "errors": [asdict(s) for s in samples + drained if s.error][:20]}
+            "errors": [asdict(s) for s in samples + drained if s.error][:20],
+            "uploads": uploads}
 
 
 def _sha(data: bytes) -> str:
@@ -264,22 +300,32 @@ def markdown(report: dict) -> str:
                   f"rows: {j['duplicate_rows']}; re-uploads naming another journey: "
                   f"{len(j['repeats_split'])}. Failure reasons: "
                   + "; ".join(f"{n} x \"{r}\"" for r, n in j["failure_reasons"].items()), ""]
-    return "\n".join(parts)
+    big = api_uploads.markdown(report["runs"], NAMES, o)
+    return "\n".join(parts + ([big] if big else []))
+
+
+JOB_PROBLEMS = ("missing", "unfinished", "attempts_not_1", "ended_not_once", "sign_rows_mismatch",
+                "duplicate_rows", "repeats_split")
 
 
 def ok(report: dict) -> bool:
-    """No request errors and every accepted upload ended exactly once."""
-    return all(not run["errors"] and not any(run["jobs"][k] for k in (
-        "missing", "unfinished", "attempts_not_1", "ended_not_once", "sign_rows_mismatch",
-        "duplicate_rows", "repeats_split")) for run in report["runs"])
+    """No request errors and every accepted upload ended exactly once (big uploads too)."""
+    parts = list(report["runs"])
+    parts += [run["uploads"] for run in report["runs"] if run.get("uploads")]
+    return all(not part["errors"] and not any(part["jobs"][k] for k in JOB_PROBLEMS)
+               for part in parts)
 
 
 def run_api_bench(opts: Options, command: str = "signmap bench api") -> tuple[Path, Path, dict]:
     turn, straight = bundles(opts.cache_dir, with_turn=opts.processed > 0)
+    big = api_uploads.big_bundles(opts.big_uploads, opts.big_upload_mb, opts.seed) \
+        if opts.big_uploads else []
+    if big:  # before minutes of load: the services get this environment's limits too
+        api_uploads.check_limits(big[0], Settings())
     runs = []
     with tempfile.TemporaryDirectory(prefix="signmap-bench-api-") as tmp:
         for backend in opts.backends:
-            runs.append(run_backend(backend, opts, turn, straight, Path(tmp) / backend))
+            runs.append(run_backend(backend, opts, turn, straight, Path(tmp) / backend, big))
     report = {"date": date.today().isoformat(), "command": command, "runs": runs,
               "options": {k: (str(v) if isinstance(v, Path) else v)
                           for k, v in asdict(opts).items()}}
@@ -290,16 +336,18 @@ def run_api_bench(opts: Options, command: str = "signmap bench api") -> tuple[Pa
     return md, js, report
 
 
+ARGS = ("clients", "requests", "uploads", "processed", "big_uploads", "big_upload_mb")
+
+
 def run_command(args) -> int:
     values = dict(QUICK) if args.quick else {}
-    for name in ("clients", "requests", "uploads", "processed"):
+    for name in ARGS:
         if getattr(args, name) is not None:
             values[name] = getattr(args, name)
     backends = ("sqlite", "postgres") if args.backend == "both" else (args.backend,)
     opts = Options(backends=backends, out_dir=args.out, cache_dir=args.cache,
                    postgres_url=args.postgres_url, redis_url=args.redis_url, **values)
-    given = [f"--{name} {getattr(args, name)}" for name in ("clients", "requests", "uploads",
-                                                             "processed")
+    given = [f"--{name.replace('_', '-')} {getattr(args, name)}" for name in ARGS
              if getattr(args, name) is not None]
     command = " ".join(["signmap bench api", f"--backend {args.backend}",
                         *(["--quick"] if args.quick else []), *given])
@@ -323,6 +371,11 @@ def add_parser(bench_sub) -> None:
                    help="new uploads that fail fast in the job (default 16; quick 3)")
     p.add_argument("--processed", type=int,
                    help="rendered journeys with a turn, really processed (default 2; quick 0)")
+    p.add_argument("--big-uploads", type=int,
+                   help="distinct big uploads sent after the load, for upload throughput "
+                        "(default 16; quick 4; 0: none)")
+    p.add_argument("--big-upload-mb", type=float,
+                   help="size of each big upload in MB (default 40; quick 8)")
     p.add_argument("--quick", action="store_true", help="a smoke run of a minute or so")
     p.add_argument("--postgres-url", default=Options.postgres_url,
                    help="PostgreSQL to create the run's database in (default: %(default)s)")

@@ -28,6 +28,7 @@ def test_bench_api_smoke(request, tmp_path, synth_cache, backend):
     if backend == "postgres":  # skipped (or, under CI, failed) without the real services
         request.getfixturevalue("pg_url"), request.getfixturevalue("redis_url")
     opts = Options(backends=(backend,), clients=3, requests=12, uploads=2, processed=0,
+                   big_uploads=2, big_upload_mb=2.0,
                    drain_timeout_s=120, map_signs=50, out_dir=tmp_path / "out",
                    cache_dir=Path(synth_cache),
                    postgres_url=PG_URL, redis_url=REDIS_URL)
@@ -40,6 +41,17 @@ def test_bench_api_smoke(request, tmp_path, synth_cache, backend):
     assert run["stats"]["upload (new)"]["n"] + run["stats"]["upload (same bytes)"]["n"] == 3
     assert sum(s["n"] for k, s in run["stats"].items() if "while jobs run" not in k) == 15
     assert "| map read (street) |" in md.read_text() and js.exists()
+    # Issue 15's upload throughput, in miniature: 2 distinct ~2 MB uploads, none lost.
+    big = run["uploads"]
+    assert big["stats"]["n"] == 2 and big["stats"]["accepted"] == 2
+    assert big["stats"]["errors"] == 0 and not big["errors"]
+    assert big["jobs"]["failed"] == 2 and big["jobs"]["done"] == 0
+    assert not big["jobs"]["missing"] and not big["jobs"]["unfinished"]
+    assert not big["jobs"]["ended_not_once"]
+    assert all("has no turn" in reason for reason in big["jobs"]["failure_reasons"])
+    assert 1.9 <= big["mb_each"] <= 2.5 and big["stats"]["uploads_per_s"] > 0
+    assert big["stats"]["validate_p50_s"] is not None  # read back from the API's log
+    assert "## Upload throughput: 2 uploads of" in md.read_text()
 
 
 def test_the_accounting_reports_lost_and_twice_ended_uploads(tmp_path):
@@ -57,5 +69,10 @@ def test_the_accounting_reports_lost_and_twice_ended_uploads(tmp_path):
     assert jobs["ended_not_once"] == ["j-lost", "j-twice"]
     assert jobs["repeats_split"] == ["sha"]
     assert not ok({"runs": [{"errors": [], "jobs": jobs}]})
+    clean = account(service, Counter(), {})
+    assert ok({"runs": [{"errors": [], "jobs": clean}]})
+    # A lost big upload fails the bench as a lost small one does.
+    assert not ok({"runs": [{"errors": [], "jobs": clean,
+                             "uploads": {"errors": [], "jobs": jobs}}]})
     # A re-upload of the failed journey queued it again: two endings are then right.
     assert account(service, Counter({"j-twice": 2}), {})["ended_not_once"] == []

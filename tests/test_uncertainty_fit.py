@@ -4,7 +4,6 @@ known model: it finds knobs that make the 95 % radii honest for both GPS kinds."
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from app.pipeline.uncertainty import GeorefTerms
 from bench.uncertainty_fit import Knobs, SignTerms, coverage, fit, sign_terms
