@@ -250,4 +250,5 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
     return Journey(camera_id=m.camera_id, frames=frames, lat_deg=gps.lat_deg,
                    lon_deg=gps.lon_deg, alt_m=gps.alt_m, detections=detections,
                    image_width=width, image_height=height, vehicle_id=m.vehicle_id,
-                   captured_at=m.captured_at, camera_prior=prior, warnings=list(gps.warnings))
+                   captured_at=m.captured_at, camera_prior=prior, warnings=list(gps.warnings),
+                   gps_noise_m=gps.noise_m)

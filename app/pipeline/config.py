@@ -111,6 +111,13 @@ class PipelineConfig(BaseModel):
     max_reprojection_rms_px: float = 4.0
     max_sign_std_m: float = 2.0
     min_ray_angle_deg: float = 1.0
+    # Chosen on the corpus tuning half (good windows <= 3.1 x, broken ones 8-59 x the GPS noise).
+    max_alignment_rms_gps_ratio: float = Field(
+        5.0, description="a sign's window alignment rms above this many times the GPS's own "
+                         "white noise means its reconstruction broke: the sign is rejected")
+    min_alignment_rms_reject_m: float = Field(
+        1.0, description="...but never below this rms (m): a near-perfect GPS must not reject "
+                         "a reconstruction good to decimetres")
     merge_fragments_within_m: float = Field(
         1.0, description="tracks of one class that share no frame and are placed this close "
                          "(horizontally) are one sign whose track broke")

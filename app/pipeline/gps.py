@@ -41,7 +41,7 @@ import io
 import math
 import xml.etree.ElementTree as ET
 from array import array
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import BinaryIO, Sequence
 
@@ -49,6 +49,7 @@ import numpy as np
 from pyproj import Geod
 
 from app.pipeline.csv_table import iter_table, parse_float
+from app.pipeline.gps_noise import white_noise_m
 from app.pipeline.types import BundleError
 
 EXTRAPOLATION_MIN_S = 1.5  # extrapolation bound: max(MIN, FIX_INTERVALS x median interval), <= MAX
@@ -97,6 +98,7 @@ class FrameGps:
     alt_m: np.ndarray
     kept: slice = field(default_factory=lambda: slice(None))
     warnings: tuple[str, ...] = ()
+    noise_m: float | None = None  # white-noise sigma of the fixes (app.pipeline.gps_noise)
 
 
 def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
@@ -218,7 +220,8 @@ def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
     frame_gps = interpolate_to_frames(fixes, frame_timestamp_s, frame_ids)
     check_plausible_motion(frame_gps.timestamp_s, frame_gps.lat_deg, frame_gps.lon_deg,
                            [f"frame {f}" for f in frame_ids[frame_gps.kept]])
-    return frame_gps
+    return replace(frame_gps, noise_m=white_noise_m(fixes.timestamp_s, fixes.lat_deg,
+                                                    fixes.lon_deg))
 
 
 def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,

@@ -40,7 +40,8 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
     classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
     for track in tracks:
         try:
-            outcome: PlacedPass | str = place_pass(track, aligned, xyz_gps, camera, config)
+            outcome: PlacedPass | str = place_pass(track, aligned, xyz_gps, camera, config,
+                                                   journey.gps_noise_m)
         except TriangulationError as exc:
             outcome = exc.reason
         passes.setdefault(track.track_id, []).append(outcome)
@@ -109,13 +110,14 @@ def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str
 
 
 def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
-               config: PipelineConfig) -> PlacedPass:
+               config: PipelineConfig, gps_noise_m: float | None = None) -> PlacedPass:
     """One pass triangulated; raises TriangulationError with the reason it cannot be placed."""
     tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
                                   margin=config.sign_window_margin_frames,
                                   min_frames=config.short_alignment_min_frames)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
+    check_reconstruction(tp.alignment_rms_m, gps_noise_m, config)
     px = undistort_pixels(camera, track.px[tp.keep])
     point = triangulate(tp.T_world_cam, px, camera.K, min_ray_angle_deg=config.min_ray_angle_deg,
                         max_rms_px=config.max_reprojection_rms_px)
@@ -123,6 +125,27 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
         raise TriangulationError(f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m")
     return PlacedPass(point, tp.T_world_cam, track.frame_idx[tp.keep], tp.alignment_rms_m,
                       GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n))
+
+
+def check_reconstruction(alignment_rms_m: float, gps_noise_m: float | None,
+                         config: PipelineConfig) -> None:
+    """Raises TriangulationError when the reconstruction that poses a sign disagrees with the GPS
+    by far more than the GPS scatters.
+
+    A good window follows its fixes to 1-3 times their white noise (the bias drift and the
+    interpolation between fixes add to it); on the corpus's tuning half, windows of broken
+    reconstructions (COLMAP mapping that went wrong, not always the same run to run) lay 8-59
+    times off, and every sign they placed was 2-15 m from the truth.
+    """
+    if gps_noise_m is None:
+        return
+    limit_m = max(config.max_alignment_rms_gps_ratio * gps_noise_m,
+                  config.min_alignment_rms_reject_m)
+    if alignment_rms_m > limit_m:
+        raise TriangulationError(
+            f"the reconstruction around it disagrees with the GPS by {alignment_rms_m:.2f} m rms, "
+            f"more than {config.max_alignment_rms_gps_ratio:g} x the GPS's own noise "
+            f"({gps_noise_m:.2f} m)")
 
 
 def combine(placed: list[PlacedPass]) -> tuple[np.ndarray, np.ndarray, float, GeorefTerms]:

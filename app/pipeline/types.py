@@ -109,6 +109,9 @@ class Journey:
     camera_prior: CameraModel | None = None
     # What validation tolerated but the uploader should know (e.g. frames dropped for lack of GPS).
     warnings: list[str] = field(default_factory=list)
+    # White-noise sigma (m, per horizontal axis) of the GPS fixes, None when too few to tell
+    # (app.pipeline.gps_noise).
+    gps_noise_m: float | None = None
 
     @property
     def has_altitude(self) -> bool:
