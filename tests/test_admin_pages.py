@@ -132,6 +132,8 @@ def test_journey_page_shows_track_signs_calibration_and_crops(client, stack):
     assert "GPS track (5 frames)" in text and "signs (2)" in text
     assert "stop" in text and "yield" in text and "calibrate" in text and "1.50 s" in text
     assert "fx = 50" in text
+    # Each sign's 95 % radius and facing (tests/service_support.py: 0.5 + 0.1 i m, 90 i deg).
+    assert "95 % within 0.50 m · faces 0°" in text and "95 % within 0.60 m · faces 90°" in text
     crop_url = f"/admin/journeys/{journey_id}/crop.png?track=0&frame=000001"
     assert crop_url in text
     crop = client.get(crop_url)
