@@ -98,7 +98,15 @@ class FrameGps:
     alt_m: np.ndarray
     kept: slice = field(default_factory=lambda: slice(None))
     warnings: tuple[str, ...] = ()
-    noise_m: float | None = None  # white-noise sigma of the fixes (app.pipeline.gps_noise)
+    fixes: GpsFixes | None = None  # the fixes they came from (None: EXIF, one per frame)
+
+    @property
+    def noise_m(self) -> float | None:
+        """White-noise sigma of the fixes (app.pipeline.gps_noise); computed on demand, so the
+        API's upload validation, which never asks, does not pay for it."""
+        if self.fixes is None:
+            return None
+        return white_noise_m(self.fixes.timestamp_s, self.fixes.lat_deg, self.fixes.lon_deg)
 
 
 def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
@@ -220,8 +228,7 @@ def _fixes_to_frames(fixes: GpsFixes, frame_timestamp_s: np.ndarray,
     frame_gps = interpolate_to_frames(fixes, frame_timestamp_s, frame_ids)
     check_plausible_motion(frame_gps.timestamp_s, frame_gps.lat_deg, frame_gps.lon_deg,
                            [f"frame {f}" for f in frame_ids[frame_gps.kept]])
-    return replace(frame_gps, noise_m=white_noise_m(fixes.timestamp_s, fixes.lat_deg,
-                                                    fixes.lon_deg))
+    return replace(frame_gps, fixes=fixes)
 
 
 def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
