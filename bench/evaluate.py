@@ -29,7 +29,7 @@ def match_signs(result: JourneyResult, truth: dict, radius_m: float = MATCH_RADI
     track is a true sign's, else the nearest unclaimed true sign within ``radius_m``), and one
     record per placed sign left over: a false sign (no true sign near) or a duplicate (the near
     one is taken by another placed sign)."""
-    enu = _truth_enu(truth)
+    enu = truth_frame(truth)
     by_track = {str(s["track_id"]): s for s in truth["signs"] if s.get("track_id") not in (None, "")}
     by_id = {truth_id(s): s for s in truth["signs"]}
     true_xy = {i: np.asarray(s["xyz_enu"], float)[:2] for i, s in by_id.items()}
@@ -63,7 +63,8 @@ def truth_id(sign: dict) -> str:
     return str(sign.get("id", sign.get("track_id")))
 
 
-def _truth_enu(truth: dict):
+def truth_frame(truth: dict):
+    """The truth's local ENU frame (its origin), in which ``xyz_enu`` and camera poses are."""
     o = truth["origin"]
     return frame_at(o["lat"], o["lon"], o["alt_m"])
 
@@ -73,7 +74,7 @@ def sign_errors(result: JourneyResult, truth: dict) -> dict[str, dict[str, float
     absolute error (m, ENU distance to the true plate centre), relative error (m, mean over
     observing frames of the camera-frame position error), facing error, horizontal error against
     its own 95 % radius, and where along the journey it was seen."""
-    enu = _truth_enu(truth)
+    enu = truth_frame(truth)
     s_by_frame = {f["frame"]: f["s_m"] for f in truth.get("frames", [])}
     out = {}
     for sign, t in match_signs(result, truth)[0]:

@@ -15,14 +15,10 @@ import numpy as np
 from app.pipeline.alignment import umeyama
 from app.pipeline.geodesy import frame_at
 from app.pipeline.types import JourneyResult
-from bench.evaluate import calibration_errors_pct, match_signs, sign_errors, truth_id
+from bench.evaluate import (calibration_errors_pct, match_signs, sign_errors, truth_frame,
+                            truth_id)
 
 ATE_SNIPPET_FRAMES = 5
-
-
-def truth_frame(truth: dict):
-    o = truth["origin"]
-    return frame_at(o["lat"], o["lon"], o["alt_m"])
 
 
 def truth_centres_enu(truth: dict) -> dict[str, np.ndarray]:
