@@ -19,7 +19,8 @@ from typing import Any, NamedTuple
 
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
-from bench import corpus_report, evaluate
+from bench import corpus_report
+from bench.evaluate import truth_id
 from bench.metrics import evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
 from bench.runner import _meta as bench_meta  # commit, machine, pycolmap: as the other benches
@@ -133,9 +134,10 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
     return record
 
 
-def _why_not(truth_id: str, truth: dict, rejected: dict[str, str]) -> str:
+def _why_not(sign_id: str, truth: dict, rejected: dict[str, str]) -> str:
     """The pipeline's reason for not placing a mappable true sign, when its track was rejected."""
-    track = next((str(s.get("track_id", "")) for s in truth["signs"] if evaluate.truth_id(s) == truth_id), "")
+    track = next((str(s.get("track_id", "")) for s in truth["signs"] if truth_id(s) == sign_id),
+                 "")
     return rejected.get(track, "not placed, no reason given" if track else
                         "not placed (the bundle has no track ids: see rejected)")
 

@@ -19,12 +19,8 @@ def pooled(paths: list[Path]) -> list[dict]:
 
 def _rows(records: list[dict]) -> dict[str, list[str]]:
     """Summary table rows of ``records``: label -> [tuning cell, check cell]."""
-    table = corpus_report.table_summary(corpus_report.build_report({}, records))
-    rows = {}
-    for line in table.splitlines()[4:]:  # title, blank line, header, rule
-        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
-        rows[cells[0]] = cells[1:]
-    return rows
+    report = corpus_report.build_report({}, records)
+    return {label: cells for label, *cells in corpus_report.summary_rows(report)}
 
 
 def compare(before: list[dict], after: list[dict]) -> str:

@@ -237,6 +237,11 @@ def _rate(rate: dict) -> str:
 
 
 def table_summary(report: dict) -> str:
+    return "### Summary\n\n" + md_table(["", *HALVES], summary_rows(report))
+
+
+def summary_rows(report: dict) -> list[list[str]]:
+    """The summary table's rows: [label, tuning cell, check cell]."""
     s = [report["summary"][h] for h in HALVES]
     rows = [["journeys run", *(str(x["n"]) for x in s)],
             ["accepted / failed / failed after calibrating",
@@ -292,7 +297,7 @@ def table_summary(report: dict) -> str:
                         + (f"{fmt(100 * y['r95_coverage'], 1)} % of {y['n_covered_of']}"
                            if y.get("r95_coverage") is not None else "–")
                         + f"; {fmt(y.get('slope_m_per_100m'), 3)}" for y in g)]]
-    return "### Summary\n\n" + md_table(["", *HALVES], rows)
+    return rows
 
 
 def table_failures(report: dict) -> str:

@@ -30,7 +30,8 @@ def match_signs(result: JourneyResult, truth: dict, radius_m: float = MATCH_RADI
     record per placed sign left over: a false sign (no true sign near) or a duplicate (the near
     one is taken by another placed sign)."""
     enu = truth_frame(truth)
-    by_track = {str(s["track_id"]): s for s in truth["signs"] if s.get("track_id") not in (None, "")}
+    by_track = {str(s["track_id"]): s for s in truth["signs"]
+                if s.get("track_id") not in (None, "")}
     by_id = {truth_id(s): s for s in truth["signs"]}
     true_xy = {i: np.asarray(s["xyz_enu"], float)[:2] for i, s in by_id.items()}
     matched, claimed, pending = [], set(), []

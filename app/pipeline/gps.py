@@ -320,7 +320,8 @@ def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> Gps
             lats.append(lat), lons.append(lon)
             elem.clear()
             if open_elements:
-                del open_elements[-1][:]  # the parent's finished points (later ones stay referenced)
+                # The parent's finished points (later ones stay referenced).
+                del open_elements[-1][:]
     except ET.ParseError as exc:
         raise BundleError(f"gps.gpx is not valid XML: {exc}") from None
     if not t_s:

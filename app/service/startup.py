@@ -54,7 +54,8 @@ def head_revision() -> str:
 def current_revision(url: str, timeout_s: float = 5.0) -> str | None:
     """The migration the database at ``url`` is at (None before the first); StartupError when it
     does not answer."""
-    connect_args = {"connect_timeout": int(max(1, timeout_s))} if url.startswith("postgresql") else {}
+    connect_args = ({"connect_timeout": int(max(1, timeout_s))} if url.startswith("postgresql")
+                    else {})
     engine = create_engine(url, poolclass=pool.NullPool, connect_args=connect_args)
     try:
         with engine.connect() as connection:
