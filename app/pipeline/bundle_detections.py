@@ -23,8 +23,8 @@ from app.pipeline.csv_table import iter_table, parse_float
 from app.pipeline.types import BundleError, Detection
 
 BORDER_TOLERANCE_PX = 1.0
-# The map stores a class in 200 characters (journey_signs.class, map_signs.class): refused at the
-# upload rather than failing the job when its signs are written.
+# The longest class the map stores (journey_signs.class, map_signs.class are this wide): a longer
+# one is refused at the upload rather than failing the job when its signs are written.
 MAX_CLASS_CHARS = 200
 
 

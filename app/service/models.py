@@ -10,6 +10,8 @@ from sqlalchemy import (JSON, DateTime, Float, ForeignKey, Integer, String, Text
                         UniqueConstraint)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from app.pipeline.bundle_detections import MAX_CLASS_CHARS
+
 ROLES = ("fleet", "reader", "admin")
 STATUSES = ("queued", "running", "done", "failed")
 
@@ -106,7 +108,7 @@ class JourneySign(Base):
     id: Mapped[str] = mapped_column(String, primary_key=True)
     journey_id: Mapped[str] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"), index=True)
     track_id: Mapped[str] = mapped_column(String)
-    cls: Mapped[str] = mapped_column("class", String(200), index=True)
+    cls: Mapped[str] = mapped_column("class", String(MAX_CLASS_CHARS), index=True)
     lat_deg: Mapped[float] = mapped_column(Float)
     lon_deg: Mapped[float] = mapped_column(Float)
     alt_m: Mapped[float | None] = mapped_column(Float)
@@ -150,7 +152,7 @@ class MapSign(Base):
     __tablename__ = "map_signs"
 
     id: Mapped[str] = mapped_column(String(64), primary_key=True)
-    cls: Mapped[str] = mapped_column("class", String(200), index=True)
+    cls: Mapped[str] = mapped_column("class", String(MAX_CLASS_CHARS), index=True)
     lat_deg: Mapped[float] = mapped_column(Float)
     lon_deg: Mapped[float] = mapped_column(Float)
     alt_m: Mapped[float | None] = mapped_column(Float)
