@@ -29,7 +29,7 @@ def facing_deg(xyz_sign_enu: np.ndarray, centres_cam_enu: np.ndarray) -> float |
     mean_en = d_en.mean(axis=0)
     if np.linalg.norm(mean_en) < 1.0 / 3.0:
         return None
-    return float(np.degrees(np.arctan2(mean_en[0], mean_en[1])) % 360.0)
+    return bearing_deg(mean_en)
 
 
 def mean_facing_deg(facings_deg, weights) -> float | None:
@@ -42,7 +42,7 @@ def mean_facing_deg(facings_deg, weights) -> float | None:
     n = sum(w * np.cos(a) for a, w in pairs)
     if np.hypot(e, n) < 1e-6 * sum(w for _, w in pairs):
         return None
-    return float(np.degrees(np.arctan2(e, n)) % 360.0)
+    return bearing_deg((e, n))
 
 
 def bearing_deg(vector_enu: np.ndarray) -> float:
