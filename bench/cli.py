@@ -80,16 +80,21 @@ def run_corpus_command(args) -> int:
     return 0
 
 
+def _runs(command: str, paths: list[Path]) -> list[dict]:
+    """The journey records of the corpus runs ``paths``, pooled; a missing file ends ``command``."""
+    from bench.corpus import read_records
+
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise SystemExit(f"signmap bench {command}: no such file: {', '.join(missing)}")
+    return read_records(paths)
+
+
 def run_uncertainty_command(args) -> int:
     from app.pipeline.config import PipelineConfig
-    from bench.corpus import read_jsonl
     from bench.uncertainty_fit import Knobs, report
 
-    records = []
-    for path in args.jsonl:
-        if not path.is_file():
-            raise SystemExit(f"signmap bench uncertainty: {path} does not exist")
-        records += read_jsonl(path)[1]
+    records = _runs("uncertainty", args.jsonl)
     c = PipelineConfig()
     fitted, table = report(records, Knobs(c.sign_georef_floor_m, c.sign_georef_noise_gain,
                                           c.sign_georef_bias_ratio))
@@ -100,12 +105,10 @@ def run_uncertainty_command(args) -> int:
 
 
 def run_corpus_compare_command(args) -> int:
-    from bench.corpus_compare import compare, pooled
+    from bench.corpus_compare import compare
 
-    missing = [str(p) for p in (*args.before, *args.after) if not p.is_file()]
-    if missing:
-        raise SystemExit(f"signmap bench corpus-compare: no such file: {', '.join(missing)}")
-    print(compare(pooled(args.before), pooled(args.after)))
+    before = _runs("corpus-compare", args.before)
+    print(compare(before, _runs("corpus-compare", args.after)))
     return 0
 
 

@@ -182,6 +182,12 @@ def read_jsonl(path: Path) -> tuple[dict | None, list[dict]]:
     return meta, records
 
 
+def read_records(paths: list[Path]) -> list[dict]:
+    """The journey records of several runs' JSONL files, pooled (e.g. two corpora of consecutive
+    seeds)."""
+    return [record for path in paths for record in read_jsonl(path)[1]]
+
+
 def _append(path: Path, item: dict) -> None:
     with path.open("a") as f:
         f.write(json.dumps(finite(item), allow_nan=False) + "\n")

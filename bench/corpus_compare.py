@@ -4,17 +4,7 @@ consecutive seeds rendered apart, so a change is judged on every journey that bo
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from bench import corpus_report
-from bench.corpus import read_jsonl
-
-
-def pooled(paths: list[Path]) -> list[dict]:
-    records = []
-    for path in paths:
-        records += read_jsonl(path)[1]
-    return records
 
 
 def _rows(records: list[dict]) -> dict[str, list[str]]:
