@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from app.pipeline.bundle import check_bundle
+from app.pipeline.geodesy import frame_at
 from app.settings import Settings
 from bench.tables import md_table
 
@@ -36,7 +37,6 @@ FRAME_DT_S, SPEED_M_S = 0.1, 10.0
 # Away from the seeded map's box and the rendered journeys' world; a fixed heading, so no turn.
 ORIGIN_LAT, ORIGIN_LON, ALT_M = 48.2, 9.2, 300.0
 HEADING_DEG = 40.0
-M_PER_DEG_LAT = 111_320.0
 
 
 def _frame(rng: np.random.Generator) -> bytes:
@@ -64,10 +64,9 @@ def frames(total_bytes: int, seed: int = 0) -> list[bytes]:
 def gps_csv(n_frames: int) -> bytes:
     """One fix per frame on a straight line at a constant speed."""
     s_m = SPEED_M_S * FRAME_DT_S * np.arange(n_frames)
-    north = s_m * math.cos(math.radians(HEADING_DEG))
-    east = s_m * math.sin(math.radians(HEADING_DEG))
-    lat = ORIGIN_LAT + north / M_PER_DEG_LAT
-    lon = ORIGIN_LON + east / (M_PER_DEG_LAT * math.cos(math.radians(ORIGIN_LAT)))
+    xyz_enu = np.column_stack([s_m * math.sin(math.radians(HEADING_DEG)),
+                               s_m * math.cos(math.radians(HEADING_DEG)), np.zeros(n_frames)])
+    lat, lon, _ = frame_at(ORIGIN_LAT, ORIGIN_LON, ALT_M).to_geodetic(xyz_enu)
     rows = [f"{i:06d},{i * FRAME_DT_S:.3f},{lat[i]:.9f},{lon[i]:.9f},{ALT_M:.1f}"
             for i in range(n_frames)]
     return ("frame,timestamp_s,lat,lon,alt_m\n" + "\n".join(rows) + "\n").encode()
