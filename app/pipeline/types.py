@@ -204,6 +204,26 @@ class JourneyResult:
     trajectory_T_world_cam: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
     gps_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     origin_lat_lon_alt: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    report: list["StageReport"] = field(default_factory=list)  # one per stage that ran, in order
+
+
+@dataclass(frozen=True)
+class StageReport:
+    """What one stage tried and how it ended, for the journey page and the CLI's JSON report
+    (OpenSfM's per-step reports): ``summary`` one line, ``details`` one line per thing tried
+    (a candidate window and why it was refused, a window's registration, a rejected track)."""
+
+    stage: str
+    summary: str
+    details: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        return {"stage": self.stage, "summary": self.summary, "details": list(self.details)}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "StageReport":
+        return cls(str(data["stage"]), str(data["summary"]),
+                   tuple(str(d) for d in data.get("details", ())))
 
 
 class Progress(Protocol):
@@ -223,6 +243,9 @@ class PipelineError(Exception):
         super().__init__(f"{stage}: {reason}")
         self.stage = stage
         self.reason = reason
+        # The reports of the stages that ran before the failure, the failing one's last
+        # (``process_journey`` fills this in): why every candidate was refused, and so on.
+        self.report: list[StageReport] = []
 
 
 class BundleError(PipelineError):
