@@ -23,7 +23,7 @@ from bench import corpus_report
 from bench.evaluate import truth_id
 from bench.metrics import evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
-from bench.runner import _meta as bench_meta  # commit, machine, pycolmap: as the other benches
+from bench.runner import run_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
 
 CORPUS_FORMAT = "signmap-corpus/1"
@@ -218,7 +218,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     out_dir.mkdir(parents=True, exist_ok=True)
     suffix = f"-{tag.lstrip('-')}" if tag else ""
     jsonl = _jsonl_path(out_dir, suffix, resume)
-    meta = {"kind": "meta", **bench_meta(False, config), "corpus": str(corpus_dir.resolve()),
+    meta = {"kind": "meta", **run_meta(False, config), "corpus": str(corpus_dir.resolve()),
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
             "true_camera": true_camera,

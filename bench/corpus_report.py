@@ -17,7 +17,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from bench.plots import _save, plt
+from bench.plots import save_figure, plt
 from bench.runner import finite
 from bench.tables import fmt, md_table
 
@@ -382,7 +382,7 @@ def plot_corpus(records: list[dict], png: Path) -> Path:
     axes[0].set_ylabel("|fx error| (%)")
     axes[0].legend(fontsize=7, loc="lower left")
     fig.suptitle("Self-calibration: focal length error per corpus journey")
-    return _save(fig, png)
+    return save_figure(fig, png)
 
 
 def write_report(meta: dict, records: list[dict], md_path: Path, json_path: Path, png: Path,

@@ -34,7 +34,7 @@ from app.synth.journey import SynthConfig
 from bench import plots
 from bench.metrics import truth_frame
 from bench.run_pipeline import RunTask, run_isolated
-from bench.runner import _meta, finite, log, run_summary
+from bench.runner import run_meta, finite, log, run_summary
 from bench.suite import JourneySpec, ensure_journey
 from bench.tables import fmt, md_table
 
@@ -344,7 +344,7 @@ def run_fusion(*, quick: bool, out_dir: Path, cache_dir: Path) -> tuple[Path, Pa
     cache_dir.mkdir(parents=True, exist_ok=True)
     stem = dt.date.today().isoformat() + "-fusion" + ("-quick" if quick else "")
     md_path, json_path, png = (out_dir / f"{stem}.{ext}" for ext in ("md", "json", "png"))
-    report = {"meta": {**_meta(quick, base), "fusion_config": fusion_config.model_dump()},
+    report = {"meta": {**run_meta(quick, base), "fusion_config": fusion_config.model_dump()},
               "bar": {"median_m": BAR_MEDIAN_M, "k": BAR_K}, "n_signs_truth": None,
               "journeys": {}, "rows": []}
     t0 = time.perf_counter()

@@ -57,7 +57,7 @@ def plot_journey(name: str, truth: dict, results: dict[str, JourneyResult | None
     ax.set_title(f"{name}: trajectories and signs (truth ENU)")
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7, loc="best")
-    return _save(fig, png)
+    return save_figure(fig, png)
 
 
 def plot_sensitivity(rows: list[dict], groups: list[str], png: Path) -> Path:
@@ -77,7 +77,7 @@ def plot_sensitivity(rows: list[dict], groups: list[str], png: Path) -> Path:
         ax.set_title(f"error in {group}", fontsize=10)
         ax.grid(True, lw=0.3)
     axes[-1, 0].set_xlabel("parameter error (%)")
-    return _save(fig, png)
+    return save_figure(fig, png)
 
 
 def plot_fusion(rows: list[dict], bar_m: float, bar_k: int, png: Path) -> Path:
@@ -102,10 +102,10 @@ def plot_fusion(rows: list[dict], bar_m: float, bar_k: int, png: Path) -> Path:
     ax.set_title("Map error vs number of journeys")
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=8, loc="best")
-    return _save(fig, png)
+    return save_figure(fig, png)
 
 
-def _save(fig, png: Path) -> Path:
+def save_figure(fig, png: Path) -> Path:
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)

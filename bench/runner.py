@@ -132,7 +132,7 @@ def finite(value):
     return value
 
 
-def _meta(quick: bool, base: PipelineConfig) -> dict:
+def run_meta(quick: bool, base: PipelineConfig) -> dict:
     import pycolmap
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=BENCH_DIR,
@@ -158,7 +158,7 @@ def run_bench(*, quick: bool, out_dir: Path, cache_dir: Path,
     out_dir.mkdir(parents=True, exist_ok=True)
     cache_dir.mkdir(parents=True, exist_ok=True)
     stem = dt.date.today().isoformat() + ("-quick" if quick else "")
-    report = {"meta": _meta(quick, base), "journeys": {}, "comparisons": {}}
+    report = {"meta": run_meta(quick, base), "journeys": {}, "comparisons": {}}
     md_path, json_path = out_dir / f"{stem}.md", out_dir / f"{stem}.json"
     t0 = time.perf_counter()
     calibrations: dict[str, CameraModel] = {}

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.calibration import _judge
+from app.pipeline.calibration import judge_window
 from app.pipeline.colmap_sfm import WindowResult
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
@@ -21,14 +21,14 @@ def _window(camera: CameraModel, *, error_px=0.15, registered=30, yaw_deg=80.0) 
 
 
 def test_a_right_calibration_passes():
-    assert _judge(_window(TRUE), PipelineConfig()) is None
+    assert judge_window(_window(TRUE), PipelineConfig()) is None
 
 
 @pytest.mark.parametrize("fx, fy", [(877.0, 772.9), (816.1, 703.8)])
 def test_a_wrong_minimum_with_unequal_focal_lengths_is_rejected(fx, fy):
     # Seen on turn-70 (2026-11-23): 0.56 px passes the error gate, fx/fy of 1.13-1.16 must not.
     wrong = CameraModel(1242, 375, fx, fy, 458.4, 253.4, -0.204, 0.037)
-    assert "fx/fy" in _judge(_window(wrong, error_px=0.56), PipelineConfig())
+    assert "fx/fy" in judge_window(_window(wrong, error_px=0.56), PipelineConfig())
 
 
 @pytest.mark.parametrize("kwargs, reason", [
@@ -37,7 +37,7 @@ def test_a_wrong_minimum_with_unequal_focal_lengths_is_rejected(fx, fy):
     ({"yaw_deg": 5.0}, "rotation"),
 ])
 def test_a_poor_window_is_rejected_with_its_reason(kwargs, reason):
-    assert reason in _judge(_window(TRUE, **kwargs), PipelineConfig())
+    assert reason in judge_window(_window(TRUE, **kwargs), PipelineConfig())
 
 
 def _track(step_m: float, n: int, stop_at: int | None = None, stop_frames: int = 0) -> np.ndarray:

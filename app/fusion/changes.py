@@ -99,7 +99,7 @@ def _sign_xyz(map_signs: list[MapSign], coverage: JourneyCoverage,
     return xyz
 
 
-def _judge(sign: MapSign, passes: list[_Pass], config: FusionConfig) -> MapSign:
+def judge_window(sign: MapSign, passes: list[_Pass], config: FusionConfig) -> MapSign:
     recent = passes[-config.removal_journeys:] if config.removal_journeys > 0 else []
     prior = [p for p in passes if not p.detected and p.captured_at < sign.first_seen_at]
     if (len(recent) == config.removal_journeys and recent and not any(p.detected for p in recent)
@@ -134,4 +134,4 @@ def detect_changes(map_signs: list[MapSign], journeys: list[JourneyCoverage], *,
             if detected or counts[n] >= config.min_frames_in_view:
                 passes[n].append(_Pass(coverage.journey_key, float(coverage.captured_at),
                                        int(counts[n]), detected))
-    return [_judge(sign, p, config) for sign, p in zip(map_signs, passes)]
+    return [judge_window(sign, p, config) for sign, p in zip(map_signs, passes)]

@@ -126,7 +126,7 @@ def _implausible(camera: CameraModel) -> str | None:
     return None
 
 
-def _judge(res: WindowResult, cfg: PipelineConfig) -> str | None:
+def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
     """Why this candidate is unusable, or None."""
     if res.error:
         return res.error
@@ -174,7 +174,7 @@ def self_calibrate(windows: list[CalibrationWindow], frame_names: list[str], cfg
             on_candidate(k, len(windows), window)
         names = [frame_names[i] for i in window.frame_idx]
         res = map_window(window, WindowRequest(names, start, calibrate=True))
-        why = _judge(res, cfg)
+        why = judge_window(res, cfg)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
