@@ -21,7 +21,7 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report
 from bench.evaluate import truth_id
-from bench.metrics import evaluate_result, mappable_ids
+from bench.metrics import calibration_summary, evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
 from bench.runner import run_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
@@ -95,12 +95,9 @@ def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, fl
 
 def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
     cal = result.calibration
-    stage1 = cal.stage1.params() if cal.stage1 is not None else None
-    return {"source": cal.source, "camera": cal.camera.params(),
-            "errors": camera_errors(cal.camera.params(), true_camera),
-            "stage1": stage1,
-            "stage1_errors": camera_errors(stage1, true_camera) if stage1 else None,
-            "reprojection_error_px": float(cal.reprojection_error_px), "evidence": cal.evidence,
+    return {**calibration_summary(cal, lambda p: camera_errors(p, true_camera),
+                                  camera_key="camera", errors_key="errors"),
+            "evidence": cal.evidence,
             "n_images": cal.n_images, "n_registered": cal.n_registered,
             "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
 

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import resource
 import warnings
+from typing import Callable
 
 import numpy as np
 
 from app.pipeline.alignment import umeyama
 from app.pipeline.geodesy import frame_at
-from app.pipeline.types import JourneyResult
+from app.pipeline.types import Calibration, JourneyResult
 from bench.evaluate import (calibration_errors_pct, match_signs, sign_errors, truth_frame,
                             truth_id)
 
@@ -130,14 +131,20 @@ def sign_summary(errors: dict[str, dict[str, float]]) -> dict[str, float]:
             "facing_median_deg": stat(np.median, facing)}
 
 
-def calibration_metrics(result: JourneyResult, truth: dict) -> dict:
-    cal = result.calibration
+def calibration_summary(cal: Calibration, errors: Callable[[dict], dict], *, camera_key: str,
+                        errors_key: str) -> dict:
+    """The estimated camera and its stage-1 start with their ``errors(params)``; the key names
+    are those of the JSON the bench (``final``, ``errors_pct``) or the corpus bench writes."""
     stage1 = cal.stage1.params() if cal.stage1 is not None else None
-    return {"source": cal.source, "final": cal.camera.params(),
-            "errors_pct": calibration_errors_pct(cal.camera.params(), truth),
-            "stage1": stage1,
-            "stage1_errors_pct": calibration_errors_pct(stage1, truth) if stage1 else None,
+    return {"source": cal.source, camera_key: cal.camera.params(),
+            errors_key: errors(cal.camera.params()), "stage1": stage1,
+            f"stage1_{errors_key}": errors(stage1) if stage1 else None,
             "reprojection_error_px": float(cal.reprojection_error_px)}
+
+
+def calibration_metrics(result: JourneyResult, truth: dict) -> dict:
+    return calibration_summary(result.calibration, lambda p: calibration_errors_pct(p, truth),
+                               camera_key="final", errors_key="errors_pct")
 
 
 def evaluate_result(result: JourneyResult, truth: dict) -> dict:
