@@ -35,6 +35,11 @@ def md_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def section(title: str, header: list[str], rows: list[list[str]], note: str = "") -> str:
+    """A table under its heading, with the note that says how to read it."""
+    return f"### {title}\n\n" + (f"{note}\n\n" if note else "") + md_table(header, rows)
+
+
 def _runs(report: dict, variants=None):
     """(journey name, journey record, variant, run) of the runs that finished."""
     for name, journey in report["journeys"].items():
@@ -69,8 +74,7 @@ def table_calibration(report: dict) -> str:
     rows.append(["paper (KITTI avg)", "Colmap", "final"]
                 + [fmt(PAPER_CALIB_PCT[k], 2) for k in CALIB_KEYS])
     header = ["journey", "calibration", "stage"] + [f"δ{k} %" for k in CALIB_KEYS]
-    return ("### Table I: self-calibration errors (% of the true value)\n\n"
-            + md_table(header, rows))
+    return section("Table I: self-calibration errors (% of the true value)", header, rows)
 
 
 def table_ego_motion(report: dict) -> str:
@@ -84,11 +88,11 @@ def table_ego_motion(report: dict) -> str:
                  fmt(PAPER_ATE["ate5_mean_m"], 4), fmt(PAPER_ATE["ate5_std_m"], 4), ""])
     header = ["journey", "calibration", "frames", "posed", "ATE full (m)", "ATE-5 mean (m)",
               "ATE-5 std (m)", "ATE as georeferenced (m)"]
-    return ("### Table II: ego-motion ATE (camera centres vs truth)\n\n"
-            "ATE full and ATE-5: after a least-squares similarity onto the truth (over all posed "
-            "frames / every 5 consecutive frames); as georeferenced: the pipeline's own GPS "
-            "alignment, no further fit. Ours poses only the frames near signs.\n\n"
-            + md_table(header, rows))
+    return section(
+        "Table II: ego-motion ATE (camera centres vs truth)", header, rows,
+        "ATE full and ATE-5: after a least-squares similarity onto the truth (over all posed "
+        "frames / every 5 consecutive frames); as georeferenced: the pipeline's own GPS "
+        "alignment, no further fit. Ours poses only the frames near signs.")
 
 
 def table_signs(report: dict) -> str:
@@ -102,10 +106,11 @@ def table_signs(report: dict) -> str:
                  "", fmt(PAPER_SIGNS["abs_mean_m"]), ""])
     header = ["journey", "calibration", "alignment", "signs / mappable", "rel mean (m)",
               "rel median (m)", "abs mean (m)", "abs median (m)"]
-    return ("### Tables III/IV: sign positioning errors\n\n"
-            "Relative: camera-frame position error averaged over the observing frames; absolute: "
-            "ENU distance to the true plate centre. Mappable: true signs detected in at least "
-            "`min_track_frames` frames.\n\n" + md_table(header, rows))
+    return section(
+        "Tables III/IV: sign positioning errors", header, rows,
+        "Relative: camera-frame position error averaged over the observing frames; absolute: "
+        "ENU distance to the true plate centre. Mappable: true signs detected in at least "
+        "`min_track_frames` frames.")
 
 
 def table_speed(report: dict) -> str:
@@ -117,12 +122,12 @@ def table_speed(report: dict) -> str:
                      fmt(run["peak_rss_mb"].get("total_mb"), 0)])
     header = ["journey", "variant", "frames", "stages (s)", "total (s)", "frames/s", "CPU s",
               "peak MB"]
-    return ("### Speed and memory\n\n"
-            "Total: bundle extraction and pipeline, wall clock, one process per run. CPU s: user + "
-            "system time of the run and its children (less sensitive to other load on the "
-            "machine). Peak MB: the run's own peak RSS plus its largest child's (COLMAP runs in "
-            "a child).\n\n"
-            + md_table(header, rows))
+    return section(
+        "Speed and memory", header, rows,
+        "Total: bundle extraction and pipeline, wall clock, one process per run. CPU s: user + "
+        "system time of the run and its children (less sensitive to other load on the "
+        "machine). Peak MB: the run's own peak RSS plus its largest child's (COLMAP runs in "
+        "a child).")
 
 
 def table_baselines(report: dict) -> str:
@@ -136,10 +141,11 @@ def table_baselines(report: dict) -> str:
         return "### Ours vs naive COLMAP\n\nNo journey had both runs finish."
     header = ["journey", "ours frames/s", "naive frames/s", "speed ours/naive", "common signs",
               "abs mean ours / naive (m)", "rel mean ours / naive (m)"]
-    return ("### Ours vs naive COLMAP\n\n"
-            "Errors over the signs both placed. The naive run may cover only the journey's first "
-            "frames (see the speed table); its cost grows faster than linearly, so the ratio "
-            "understates the gap on the whole journey.\n\n" + md_table(header, rows))
+    return section(
+        "Ours vs naive COLMAP", header, rows,
+        "Errors over the signs both placed. The naive run may cover only the journey's first "
+        "frames (see the speed table); its cost grows faster than linearly, so the ratio "
+        "understates the gap on the whole journey.")
 
 
 def table_failures(report: dict) -> str:
@@ -148,7 +154,7 @@ def table_failures(report: dict) -> str:
             for variant, run in journey["runs"].items() if run.get("status") != "ok"]
     if not rows:
         return "### Failed runs\n\nNone."
-    return "### Failed runs\n\n" + md_table(["journey", "variant", "status", "reason"], rows)
+    return section("Failed runs", ["journey", "variant", "status", "reason"], rows)
 
 
 REPORT_TABLES: list[Callable[[dict], str]] = [
