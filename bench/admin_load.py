@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy import insert
 
-from app.service.db import session_scope, upgrade
-from app.service.models import (STATUSES, CalibrationRecord, Journey, JourneySign, MapSign,
-                                MapSignMember, utc_now)
+from app.service.db.session import session_scope, upgrade
+from app.service.db.models import (STATUSES, CalibrationRow, JourneyRow, JourneySignRow, MapSignRow,
+                                MapSignMemberRow, utc_now)
 from app.settings import Settings
 
 LAT0, LON0 = 49.0, 8.4
@@ -85,9 +85,9 @@ def fill(url: str, n_journeys: int, n_signs: int, seed: int = 0) -> list[str]:
     members = [dict(map_sign_id=m["id"], journey_sign_id=s["id"], weight=1.0)
                for m, s in zip(map_signs, signs)]
     with session_scope(url) as session:
-        session.execute(insert(Journey), journeys)
-        session.execute(insert(CalibrationRecord), calibrations)
-        for table, rows in ((JourneySign, signs), (MapSign, map_signs), (MapSignMember, members)):
+        session.execute(insert(JourneyRow), journeys)
+        session.execute(insert(CalibrationRow), calibrations)
+        for table, rows in ((JourneySignRow, signs), (MapSignRow, map_signs), (MapSignMemberRow, members)):
             for start in range(0, len(rows), 10_000):
                 session.execute(insert(table), rows[start:start + 10_000])
     return ids

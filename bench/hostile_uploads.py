@@ -26,7 +26,7 @@ import json, resource, sys, tempfile, time
 from fastapi.testclient import TestClient
 from app.service.app import create_app
 from app.service.auth import create_key
-from app.service.db import session_scope, upgrade
+from app.service.db.session import session_scope, upgrade
 from app.settings import Settings
 
 def rss_mb():

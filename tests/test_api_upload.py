@@ -14,8 +14,8 @@ import pytest
 import uvicorn
 from sqlalchemy import update
 
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from tests import bundle_factory as bf
 from tests.conftest import auth, sqlite_stack
 
@@ -146,7 +146,7 @@ def test_valid_upload_is_queued_and_stored_once(stack):
     assert stack.stored_files() == [f"bundles/{sha}.zip"]
     assert (stack.settings.data_dir / "bundles" / f"{sha}.zip").read_bytes() == data
     with session_scope(stack.url) as session:
-        row = session.get(Journey, body["id"])
+        row = session.get(JourneyRow, body["id"])
         assert (row.bundle_sha256, row.bundle_bytes, row.attempts) == (sha, len(data), 0)
 
 
@@ -171,7 +171,7 @@ def test_reupload_of_a_failed_journey_queues_it_again(stack):
     with stack.client() as client:
         journey_id = _post(client, key, data).json()["id"]
         with session_scope(stack.url) as session:
-            session.execute(update(Journey).where(Journey.id == journey_id).values(
+            session.execute(update(JourneyRow).where(JourneyRow.id == journey_id).values(
                 status="failed", error="no turn", attempts=1))
         again = _post(client, key, data)
         body = client.get(f"/api/v1/journeys/{journey_id}", headers=auth(key)).json()

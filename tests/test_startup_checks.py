@@ -20,7 +20,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy.exc import OperationalError
 
 from app.service.app import create_app
-from app.service.db import upgrade
+from app.service.db.session import upgrade
 from app.service.startup import StartupError
 from tests.conftest import REPO, _pg_database, make_settings, settings_env
 

@@ -12,13 +12,13 @@ from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
 from app.service import startup
 from app.service.admin import mount_admin
-from app.service.api import router
-from app.service.map_api import router as map_router
-from app.service.db import session_scope
-from app.service.queue import make_queue
-from app.service.schemas import ErrorOut
+from app.service.api.routes.journeys import router
+from app.service.api.routes.map import router as map_router
+from app.service.db.session import session_scope
+from app.service.jobs.queue import make_queue
+from app.service.api.schemas import ErrorOut
 from app.service.storage import make_store
-from app.service.sweep import Sweeper
+from app.service.jobs.sweep import Sweeper
 from app.settings import Settings
 
 log = logging.getLogger(__name__)

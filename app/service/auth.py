@@ -13,8 +13,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.service.db import session_scope
-from app.service.models import ROLES, ApiKey
+from app.service.db.session import session_scope
+from app.service.db.models import ROLES, ApiKeyRow
 
 # The ASGI scope key under which the dashboard's in-process API calls carry their principal.
 DASHBOARD_PRINCIPAL = "signmap.dashboard_principal"
@@ -42,7 +42,7 @@ def create_key(session: Session, role: str, name: str = "") -> str:
     if role not in ROLES:
         raise ValueError(f"role must be one of {', '.join(ROLES)}")
     key = secrets.token_urlsafe(32)
-    session.add(ApiKey(name=name, role=role, key_sha256=key_sha256(key)))
+    session.add(ApiKeyRow(name=name, role=role, key_sha256=key_sha256(key)))
     session.flush()
     return key
 
@@ -50,7 +50,7 @@ def create_key(session: Session, role: str, name: str = "") -> str:
 def lookup_key(session: Session, key: str, admin_key: str | None) -> Principal | None:
     if admin_key and hmac.compare_digest(key.encode(), admin_key.encode()):
         return Principal(key_id=None, role="admin", name="SIGNMAP_ADMIN_KEY")
-    row = session.scalars(select(ApiKey).where(ApiKey.key_sha256 == key_sha256(key))).first()
+    row = session.scalars(select(ApiKeyRow).where(ApiKeyRow.key_sha256 == key_sha256(key))).first()
     return None if row is None else Principal(key_id=row.id, role=row.role, name=row.name)
 
 

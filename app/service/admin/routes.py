@@ -17,8 +17,8 @@ from app.service import storage
 from app.service.admin import data, media
 from app.service.admin.session import (COOKIE, DashboardSession, as_principal, cookie_args,
                                        current_session, sign_in, sign_out)
-from app.service.db import session_scope
-from app.service.models import STATUSES, Journey, JourneyCoverage, JourneySign
+from app.service.db.session import session_scope
+from app.service.db.models import STATUSES, JourneyRow, CoverageRow, JourneySignRow
 
 log = logging.getLogger(__name__)
 templates = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -131,8 +131,8 @@ async def delete(request: Request, journey_id: str, signed_in: SignedIn) -> Resp
     return RedirectResponse("/admin/journeys", status_code=303)
 
 
-def _journey(session, journey_id: str) -> Journey:
-    row = session.get(Journey, journey_id)
+def _journey(session, journey_id: str) -> JourneyRow:
+    row = session.get(JourneyRow, journey_id)
     if row is None:
         raise HTTPException(404, f"journey {journey_id} not found")
     return row
@@ -145,7 +145,7 @@ def journey(request: Request, journey_id: str, _signed_in: SignedIn) -> HTMLResp
         row = _journey(session, journey_id)
         signs = data.journey_signs(session, journey_id)
         history = data.calibrations(session, row.camera_id)
-        coverage = session.get(JourneyCoverage, journey_id)
+        coverage = session.get(CoverageRow, journey_id)
         estimated = [] if coverage is None else media.estimated_track(
             coverage.poses, coverage.origin_lat_deg, coverage.origin_lon_deg,
             coverage.origin_alt_m)
@@ -165,7 +165,7 @@ def crop(request: Request, journey_id: str, track: str, frame: str, _signed_in: 
     settings = _settings(request)
     with session_scope(_url(request)) as session:
         row = _journey(session, journey_id)
-        sign = session.get(JourneySign, f"{journey_id}:{track}")
+        sign = session.get(JourneySignRow, f"{journey_id}:{track}")
     obs = next((o for o in (sign.observations if sign else []) if o.get("frame") == frame), None)
     if obs is None:
         raise HTTPException(404, "no such observation")

@@ -4,7 +4,7 @@ SameSite=strict cookie that holds only an opaque random token.
 The server keeps the token's SHA-256 in ``admin_sessions`` with who signed in and when the session
 expires, so the cookie is worth nothing elsewhere: it is not an API key (a Bearer request with it
 gets 401), it stops working the moment it expires, and signing out deletes its row. Expired rows
-are swept at every sign-in and by the API's periodic sweep (``app.service.sweep``).
+are swept at every sign-in and by the API's periodic sweep (``app.service.jobs.sweep``).
 
 The dashboard calls the public API in-process on the signed-in operator's behalf (``as_principal``):
 the principal travels in the ASGI scope, which no HTTP client can set.
@@ -21,8 +21,8 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from app.service.auth import DASHBOARD_PRINCIPAL, Principal, key_sha256, lookup_key
-from app.service.db import session_scope
-from app.service.models import ApiKey, AdminSession, utc_now
+from app.service.db.session import session_scope
+from app.service.db.models import ApiKeyRow, AdminSessionRow, utc_now
 from app.settings import Settings
 
 COOKIE = "signmap_admin"
@@ -48,7 +48,7 @@ def sign_in(settings: Settings, key: str) -> str | None:
             return None
         forget_expired(session)
         now = utc_now()
-        session.add(AdminSession(token_sha256=key_sha256(token), key_id=principal.key_id,
+        session.add(AdminSessionRow(token_sha256=key_sha256(token), key_id=principal.key_id,
                                  name=principal.name[:200], created_at=now,
                                  expires_at=now + timedelta(seconds=settings.admin_session_max_age_s)))
     return token
@@ -63,9 +63,9 @@ def current_session(request: Request) -> DashboardSession:
     digest = key_sha256(token)
     with session_scope(settings.effective_database_url) as session:
         row = session.execute(
-            select(AdminSession.key_id, AdminSession.name, ApiKey.role)
-            .outerjoin(ApiKey, ApiKey.id == AdminSession.key_id)
-            .where(AdminSession.token_sha256 == digest, AdminSession.expires_at > utc_now())
+            select(AdminSessionRow.key_id, AdminSessionRow.name, ApiKeyRow.role)
+            .outerjoin(ApiKeyRow, ApiKeyRow.id == AdminSessionRow.key_id)
+            .where(AdminSessionRow.token_sha256 == digest, AdminSessionRow.expires_at > utc_now())
         ).first()
     if row is None:  # unknown, signed out or expired
         raise NotSignedIn
@@ -78,12 +78,12 @@ def current_session(request: Request) -> DashboardSession:
 
 def sign_out(settings: Settings, token_sha256: str) -> None:
     with session_scope(settings.effective_database_url) as session:
-        session.execute(delete(AdminSession).where(AdminSession.token_sha256 == token_sha256))
+        session.execute(delete(AdminSessionRow).where(AdminSessionRow.token_sha256 == token_sha256))
 
 
 def forget_expired(session: Session) -> int:
     """Delete expired sessions; returns how many (indexed on expires_at, so cheap when none)."""
-    return session.execute(delete(AdminSession).where(AdminSession.expires_at <= utc_now())).rowcount
+    return session.execute(delete(AdminSessionRow).where(AdminSessionRow.expires_at <= utc_now())).rowcount
 
 
 def as_principal(app, principal: Principal):

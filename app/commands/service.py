@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from app.service.models import ROLES
+from app.service.db.models import ROLES
 from app.settings import Settings
 
 
@@ -19,7 +19,7 @@ def serve(args: argparse.Namespace) -> int:
 
     from app.service import startup
     from app.service.app import create_app
-    from app.service.db import upgrade
+    from app.service.db.session import upgrade
 
     settings = Settings()
     _logging(settings)
@@ -56,7 +56,7 @@ def worker(args: argparse.Namespace) -> int:
 
 def db_upgrade(args: argparse.Namespace) -> int:
     from app.service import startup
-    from app.service.db import upgrade
+    from app.service.db.session import upgrade
 
     settings = Settings()
     _logging(settings)
@@ -74,7 +74,7 @@ def db_upgrade(args: argparse.Namespace) -> int:
 def keys_create(args: argparse.Namespace) -> int:
     from app.service import startup
     from app.service.auth import create_key
-    from app.service.db import session_scope
+    from app.service.db.session import session_scope
 
     settings = Settings()
     try:

@@ -52,7 +52,7 @@ def make_queue(settings: Settings) -> JobQueue:
     if settings.broker_url:
         return CeleryQueue(settings)
     if settings.embedded_worker:
-        from app.service.embedded import EmbeddedWorker
+        from app.service.jobs.embedded import EmbeddedWorker
 
         return EmbeddedWorker(settings)
     return HoldQueue()

@@ -9,7 +9,7 @@ from sqlalchemy import Select, and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.geojson import sign_feature
-from app.service.models import Journey, JourneySign
+from app.service.db.models import JourneyRow, JourneySignRow
 
 
 @dataclass(frozen=True)
@@ -48,19 +48,19 @@ class BBox:
 def _in_bbox(dialect: str, bbox: BBox):
     if dialect == "postgresql":
         # Matches the GiST index on point(lon_deg, lat_deg) (migration 0001).
-        point = func.point(JourneySign.lon_deg, JourneySign.lat_deg)
+        point = func.point(JourneySignRow.lon_deg, JourneySignRow.lat_deg)
         return or_(*(point.op("<@")(func.box(func.point(lo, bbox.min_lat),
                                              func.point(hi, bbox.max_lat)))
                      for lo, hi in bbox.lon_ranges()))
-    return and_(JourneySign.lat_deg.between(bbox.min_lat, bbox.max_lat),
-                or_(*(JourneySign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
+    return and_(JourneySignRow.lat_deg.between(bbox.min_lat, bbox.max_lat),
+                or_(*(JourneySignRow.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
 
 
 def map_signs_query(dialect: str, bbox: BBox, cls: str | None = None, limit: int = 1000) -> Select:
-    query = (select(JourneySign).join(Journey, Journey.id == JourneySign.journey_id)
-             .where(Journey.status == "done", _in_bbox(dialect, bbox))
-             .order_by(JourneySign.id).limit(limit))
-    return query if cls is None else query.where(JourneySign.cls == cls)
+    query = (select(JourneySignRow).join(JourneyRow, JourneyRow.id == JourneySignRow.journey_id)
+             .where(JourneyRow.status == "done", _in_bbox(dialect, bbox))
+             .order_by(JourneySignRow.id).limit(limit))
+    return query if cls is None else query.where(JourneySignRow.cls == cls)
 
 
 def map_signs(session: Session, bbox: BBox, cls: str | None = None, limit: int = 1000
@@ -72,12 +72,12 @@ def map_signs(session: Session, bbox: BBox, cls: str | None = None, limit: int =
 
 
 def journey_signs(session: Session, journey_id: str) -> list[dict[str, Any]]:
-    rows = session.scalars(select(JourneySign).where(JourneySign.journey_id == journey_id)
-                           .order_by(JourneySign.id))
+    rows = session.scalars(select(JourneySignRow).where(JourneySignRow.journey_id == journey_id)
+                           .order_by(JourneySignRow.id))
     return [_feature(row, with_observations=True) for row in rows]
 
 
-def _feature(row: JourneySign, with_observations: bool) -> dict[str, Any]:
+def _feature(row: JourneySignRow, with_observations: bool) -> dict[str, Any]:
     extra: dict[str, Any] = {"observations": row.observations} if with_observations else {}
     return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m,
                         track_id=row.track_id, journey_id=row.journey_id, std_m=row.std_m,

@@ -5,7 +5,7 @@
   are taken for dead: the API sweeps them at start and every ``sweep_interval_s``.
 * ``work/<journey>-<n>/``: a worker killed mid-job leaves its run's files. A directory is kept
   only while its journey is ``running`` with attempt ``n``; workers sweep at start and after every
-  requeue of stale journeys (``worker.tasks``, ``app.service.embedded``).
+  requeue of stale journeys (``worker.tasks``, ``app.service.jobs.embedded``).
 * expired dashboard sessions (``admin.session.forget_expired``), swept with ``incoming/``.
 """
 
@@ -19,8 +19,8 @@ from pathlib import Path
 
 from sqlalchemy import select
 
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -74,7 +74,7 @@ def sweep_work(data_dir: Path, url: str) -> list[str]:
         return []
     with session_scope(url) as session:
         live = {f"{journey_id}-{attempt}" for journey_id, attempt in session.execute(
-            select(Journey.id, Journey.attempts).where(Journey.status == "running"))}
+            select(JourneyRow.id, JourneyRow.attempts).where(JourneyRow.status == "running"))}
     removed = [name for name in names if name not in live]
     for name in removed:
         _remove(directory / name)

@@ -16,12 +16,13 @@ from sqlalchemy.exc import IntegrityError
 from app.geojson import feature_collection
 from app.pipeline.bundle import check_bundle
 from app.pipeline.types import BundleError
-from app.service import queries, storage
+from app.service import storage
+from app.service.db import queries
 from app.service.auth import Principal, require
-from app.service.db import session_scope
-from app.service.models import Journey
-from app.service.schemas import NO_NUL, ErrorOut, JourneyAccepted, JourneyOut, SignCollection
-from app.service.upload import FIELD, receive_bundle
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
+from app.service.api.schemas import NO_NUL, ErrorOut, JourneyAccepted, JourneyOut, SignCollection
+from app.service.api.upload import FIELD, receive_bundle
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/api/v1")
@@ -38,13 +39,13 @@ def _url(request: Request) -> str:
     return request.app.state.settings.effective_database_url
 
 
-def _journey_out(row: Journey) -> dict[str, Any]:
+def _journey_out(row: JourneyRow) -> dict[str, Any]:
     return JourneyOut.model_validate(row, from_attributes=True).model_dump(mode="json")
 
 
-def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
+def _own_journey(request: Request, journey_id: str, who: Principal) -> JourneyRow:
     with session_scope(_url(request)) as session:
-        row = session.get(Journey, journey_id)
+        row = session.get(JourneyRow, journey_id)
     # Another fleet's journey answers 404 like a missing one: ids are not disclosed across fleets.
     if row is None or not who.owns(row.owner_key_id):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
@@ -98,7 +99,7 @@ async def upload_journey(request: Request,
     finally:
         incoming.unlink(missing_ok=True)
 
-    row = Journey(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
+    row = JourneyRow(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
                   vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
                   bundle_sha256=received.sha256, bundle_bytes=received.n_bytes, status="queued",
                   progress=0.0, n_frames=journey.n_frames, attempts=0)
@@ -125,8 +126,8 @@ async def upload_journey(request: Request,
 def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | None:
     """The answer to a re-upload of bytes this owner uploaded before; a failed journey is requeued."""
     with session_scope(_url(request)) as session:
-        row = session.scalars(select(Journey).where(Journey.owner_key_id == who.key_id,
-                                                    Journey.bundle_sha256 == sha256)).first()
+        row = session.scalars(select(JourneyRow).where(JourneyRow.owner_key_id == who.key_id,
+                                                    JourneyRow.bundle_sha256 == sha256)).first()
         if row is None:
             return None
         requeue = row.status == "failed"
@@ -140,9 +141,9 @@ def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | N
     return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
 
 
-def _undo(request: Request, row: Journey, new_file: bool) -> None:
+def _undo(request: Request, row: JourneyRow, new_file: bool) -> None:
     with session_scope(_url(request)) as session:
-        session.execute(delete(Journey).where(Journey.id == row.id))
+        session.execute(delete(JourneyRow).where(JourneyRow.id == row.id))
     if new_file:
         storage.release_bundle(_url(request), request.app.state.store, row.bundle_sha256)
 
@@ -152,9 +153,9 @@ def _undo(request: Request, row: Journey, new_file: bool) -> None:
             responses=_AUTH_ERRORS)
 def list_journeys(request: Request, who: Annotated[Principal, Depends(require("fleet"))],
                   limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
-    query = select(Journey).order_by(Journey.created_at.desc()).limit(limit)
+    query = select(JourneyRow).order_by(JourneyRow.created_at.desc()).limit(limit)
     if who.role != "admin":
-        query = query.where(Journey.owner_key_id == who.key_id)
+        query = query.where(JourneyRow.owner_key_id == who.key_id)
     with session_scope(_url(request)) as session:
         return [_journey_out(row) for row in session.scalars(query)]
 

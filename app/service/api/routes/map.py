@@ -12,15 +12,16 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.geojson import sign_feature
-from app.service import fusion_job, storage
+from app.service import storage
+from app.service.jobs import fusion
 from app.service.auth import Principal, require
-from app.service.db import session_scope
-from app.service.models import Journey, JourneySign, MapSign, MapSignMember
-from app.service.map_read import heavy_read, parse_cursor, read_connection, signs_page_json
-from app.service.map_tiles import (MEDIA_TYPE, Tile, TileCache, encode, map_version,
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, JourneySignRow, MapSignRow, MapSignMemberRow
+from app.service.db.map_read import heavy_read, parse_cursor, read_connection, signs_page_json
+from app.service.db.map_tiles import (MEDIA_TYPE, Tile, TileCache, encode, map_version,
                                    tile_features)
-from app.service.queries import BBox
-from app.service.schemas import NO_NUL, ErrorOut, PointGeometry
+from app.service.db.queries import BBox
+from app.service.api.schemas import NO_NUL, ErrorOut, PointGeometry
 
 router = APIRouter(prefix="/api/v1")
 _AUTH = {401: {"model": ErrorOut, "description": "no or unknown API key"},
@@ -83,7 +84,7 @@ def _since_utc(since: datetime) -> datetime:
                             f"since {since.isoformat()} is out of range") from exc
 
 
-def map_sign_feature(row: MapSign, **extra: Any) -> dict[str, Any]:
+def map_sign_feature(row: MapSignRow, **extra: Any) -> dict[str, Any]:
     return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m, state=row.state,
                         std_m=row.std_m, n_journeys=row.n_journeys,
                         n_observations=row.n_observations,
@@ -178,9 +179,9 @@ def get_map_changes(request: Request, who: Annotated[Principal, Depends(require(
                     since: datetime) -> dict[str, Any]:
     since = _since_utc(since)
     with session_scope(_url(request)) as session:
-        until = session.scalar(select(func.max(MapSign.updated_at))) or since
-        rows = list(session.scalars(select(MapSign).where(MapSign.updated_at >= since)
-                                    .order_by(MapSign.id)))
+        until = session.scalar(select(func.max(MapSignRow.updated_at))) or since
+        rows = list(session.scalars(select(MapSignRow).where(MapSignRow.updated_at >= since)
+                                    .order_by(MapSignRow.id)))
     live = [r for r in rows if r.removed_at is None]
     return {"since": since, "until": max(until, since),
             "created": [map_sign_feature(r) for r in live if r.created_at >= since],
@@ -191,9 +192,9 @@ def get_map_changes(request: Request, who: Annotated[Principal, Depends(require(
 
 def _members(session: Session, map_sign_id: str) -> list[dict[str, Any]]:
     rows = session.execute(
-        select(MapSignMember.weight, JourneySign).join(
-            JourneySign, JourneySign.id == MapSignMember.journey_sign_id)
-        .where(MapSignMember.map_sign_id == map_sign_id).order_by(JourneySign.id)).all()
+        select(MapSignMemberRow.weight, JourneySignRow).join(
+            JourneySignRow, JourneySignRow.id == MapSignMemberRow.journey_sign_id)
+        .where(MapSignMemberRow.map_sign_id == map_sign_id).order_by(JourneySignRow.id)).all()
     return [{"journey_sign_id": s.id, "journey_id": s.journey_id, "track_id": s.track_id,
              "class": s.cls, "lat": s.lat_deg, "lon": s.lon_deg, "alt_m": s.alt_m,
              "std_m": s.std_m, "weight": weight, "observations": s.observations}
@@ -208,7 +209,7 @@ def _members(session: Session, map_sign_id: str) -> list[dict[str, Any]]:
 def get_map_sign(request: Request, sign_id: Annotated[str, Path(pattern=NO_NUL)],
                  who: Annotated[Principal, Depends(require("reader"))]) -> dict[str, Any]:
     with session_scope(_url(request)) as session:
-        row = session.get(MapSign, sign_id)
+        row = session.get(MapSignRow, sign_id)
         if row is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"map sign {sign_id} not found")
         return map_sign_feature(
@@ -227,11 +228,11 @@ def get_map_sign(request: Request, sign_id: Annotated[str, Path(pattern=NO_NUL)]
 def delete_journey(request: Request, journey_id: Annotated[str, Path(pattern=NO_NUL)],
                    who: Annotated[Principal, Depends(require("admin"))]) -> None:
     with session_scope(_url(request)) as session:
-        row = session.get(Journey, journey_id)
+        row = session.get(JourneyRow, journey_id)
         running = row is not None and row.status == "running"
         sha256 = row.bundle_sha256 if row is not None else None
     if running:
         raise HTTPException(status.HTTP_409_CONFLICT, f"journey {journey_id} is running")
-    if not fusion_job.delete_journey(_url(request), journey_id, request.app.state.settings):
+    if not fusion.delete_journey(_url(request), journey_id, request.app.state.settings):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
     storage.release_bundle(_url(request), request.app.state.store, sha256)
