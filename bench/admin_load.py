@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from fastapi.testclient import TestClient
 
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
     data_dir = Path(args.out or tempfile.mkdtemp(prefix="signmap-admin-load-"))
     admin_key = secrets.token_urlsafe(16)
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         "map query, street viewport": f"/admin/api/signs?bbox={street}&limit=2000",
         "map query, city viewport": f"/admin/api/signs?bbox={city}&limit=2000",
     }
-    with TestClient(create_app(settings)) as client:
+    with TestClient(create_service_app(settings)) as client:
         client.post("/admin/login", data={"key": admin_key})
         print(f"{'page':32s} {'median ms':>10s} {'max ms':>8s} {'kB':>7s}")
         for name, path in pages.items():

@@ -165,9 +165,9 @@ class Stack:
     def client(self):
         from fastapi.testclient import TestClient
 
-        from app.service.app import create_app
+        from app.commands.service import create_service_app
 
-        with TestClient(create_app(self.settings)) as client:
+        with TestClient(create_service_app(self.settings)) as client:
             yield client
 
     def count_journeys(self, key: str) -> int:

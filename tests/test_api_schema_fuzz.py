@@ -37,7 +37,7 @@ from schemathesis.specs.openapi.checks import (content_type_conformance,
 from sqlalchemy import select
 
 from app.pipeline.bundle import read_bundle
-from app.service.app import create_app
+from app.commands.service import create_service_app
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow, MapSignRow
 from tests import bundle_factory as bf
@@ -53,7 +53,7 @@ CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,
 ROOT = Path(tempfile.mkdtemp(prefix="signmap-fuzz-"))
 atexit.register(shutil.rmtree, ROOT, ignore_errors=True)
 SQLITE = sqlite_stack(ROOT / "data")
-SQLITE_APP = create_app(SQLITE.settings)
+SQLITE_APP = create_service_app(SQLITE.settings)
 schema = schemathesis.openapi.from_asgi("/openapi.json", SQLITE_APP)
 STATUSES: Counter = Counter()  # (backend, operation, status) of every call, for the coverage test
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, database=None,
@@ -101,7 +101,7 @@ def sqlite_target():
 def postgres_target(own_pg_url, tmp_path_factory):
     stack = Stack("postgres", make_settings(tmp_path_factory.mktemp("fuzz-pg") / "data",
                                             database_url=own_pg_url))
-    return _seed(stack, create_app(stack.settings))
+    return _seed(stack, create_service_app(stack.settings))
 
 
 def _deletable_journey(stack: Stack) -> str:

@@ -95,13 +95,13 @@ def _live_server(app):
 def test_over_the_limit_while_streaming_is_413(tmp_path):
     """The body's chunks stop 128 KiB past the limit and the request never ends: a server that
     read the whole body before checking would never answer."""
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
     stack = sqlite_stack(tmp_path / "data", max_upload_mb=1)
     key = stack.key("fleet")
     head = (b"--XyZ\r\nContent-Disposition: form-data; name=\"bundle\"; filename=\"j.zip\"\r\n"
             b"Content-Type: application/zip\r\n\r\n")
-    with _live_server(create_app(stack.settings)) as port:
+    with _live_server(create_service_app(stack.settings)) as port:
         with socket.create_connection(("127.0.0.1", port), timeout=30) as conn:
             conn.sendall(b"POST /api/v1/journeys HTTP/1.1\r\nHost: test\r\n"
                          b"Authorization: Bearer " + key.encode() + b"\r\n"

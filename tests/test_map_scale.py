@@ -209,9 +209,9 @@ def test_health_answers_while_map_reads_queue(tmp_path):
     stack = sqlite_stack(tmp_path / "data", map_read_concurrency=1)
     m, _ = ensure_loaded(stack.url, 20_000, log=lambda *_: None)
     bbox = ",".join(map(str, m.city_bbox(0)))
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
-    app = create_app(stack.settings)
+    app = create_service_app(stack.settings)
     done: list[str] = []
 
     async def run() -> None:

@@ -1,5 +1,7 @@
-"""How the API hands a journey to a worker: Celery when a broker is configured, else the embedded
-worker in this process (or nobody, with ``embedded_worker`` off: uploads then stay queued)."""
+"""How the API hands a journey to a worker: the ``JobQueue`` interface, and the two queues that need
+no broker: the embedded worker in this process, or nobody (``embedded_worker`` off: uploads then stay
+queued in the database). The Celery queue (``worker.queue.CeleryQueue``) is chosen above this
+package, where a broker is configured (``app.commands.service.create_service_app``)."""
 
 from __future__ import annotations
 
@@ -16,25 +18,6 @@ class JobQueue(Protocol):
     def stop(self) -> None: ...
 
 
-class CeleryQueue:
-    def __init__(self, settings: Settings):
-        from worker.celery_app import make_celery
-
-        self.settings = settings
-        self.app = make_celery(settings)
-
-    def start(self) -> None:
-        pass
-
-    def submit(self, journey_id: str) -> None:
-        from worker.celery_app import RUN_JOURNEY
-
-        self.app.send_task(RUN_JOURNEY, args=[journey_id], queue=self.settings.celery_queue)
-
-    def stop(self) -> None:
-        self.app.close()
-
-
 class HoldQueue:
     """Accepts and keeps journeys queued in the database; a later embedded worker picks them up."""
 
@@ -48,9 +31,8 @@ class HoldQueue:
         pass
 
 
-def make_queue(settings: Settings) -> JobQueue:
-    if settings.broker_url:
-        return CeleryQueue(settings)
+def local_queue(settings: Settings) -> JobQueue:
+    """The queue without a broker: the embedded worker, or HoldQueue with ``embedded_worker`` off."""
     if settings.embedded_worker:
         from app.service.jobs.embedded import EmbeddedWorker
 
