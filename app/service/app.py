@@ -14,8 +14,8 @@ from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
 from app.service import startup
 from app.service.admin import mount_admin
-from app.service.api.routes.journeys import router
-from app.service.api.routes.map import router as map_router
+from app.service.api.routes import journeys, tiles
+from app.service.api.routes import map as map_routes
 from app.service.db.session import session_scope
 from app.service.jobs.queue import JobQueue, local_queue
 from app.service.api.schemas import ErrorOut
@@ -67,8 +67,8 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
     app.state.settings = settings
     app.state.queue = queue
     app.state.store = make_store(settings)
-    app.include_router(router)
-    app.include_router(map_router)
+    for routes in (journeys, map_routes, tiles):
+        app.include_router(routes.router)
     mount_admin(app)
     app.add_middleware(_JsonErrors)
 

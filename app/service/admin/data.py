@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow
@@ -45,7 +45,7 @@ def list_journeys(session: Session, status: str | None, camera_id: str | None, p
              .order_by(JourneyRow.created_at.desc(), JourneyRow.id)
              .offset((page - 1) * PAGE_SIZE).limit(PAGE_SIZE))
     rows = [dict(r._mapping, wall_s=_wall_s(r)) for r in session.execute(query)]
-    return JourneyPage(rows, total, page, n_pages)
+    return JourneyPage(rows=rows, total=total, page=page, n_pages=n_pages)
 
 
 def camera_ids(session: Session) -> list[str]:
@@ -71,21 +71,6 @@ def calibrations(session: Session, camera_id: str | None = None) -> list[Calibra
     if camera_id is not None:
         query = query.where(CalibrationRow.camera_id == camera_id)
     return list(session.scalars(query))
-
-
-def requeue_failed(session: Session, journey_id: str) -> bool:
-    """Put a failed journey back to queued exactly as a re-upload does; False if it is not failed."""
-    return session.execute(
-        update(JourneyRow).where(JourneyRow.id == journey_id, JourneyRow.status == "failed")
-        .values(status="queued", stage=None, progress=0.0, error=None, attempts=0)
-    ).rowcount == 1
-
-
-def delete_journey(session: Session, journey_id: str) -> bool:
-    """The journey, its signs and its calibration, in the caller's one transaction."""
-    session.execute(delete(JourneySignRow).where(JourneySignRow.journey_id == journey_id))
-    session.execute(delete(CalibrationRow).where(CalibrationRow.journey_id == journey_id))
-    return session.execute(delete(JourneyRow).where(JourneyRow.id == journey_id)).rowcount == 1
 
 
 def fx_chart(records: list[CalibrationRow], width: int = 240, height: int = 60

@@ -18,6 +18,13 @@ class ErrorOut(BaseModel):
         "gps.csv: timestamp_s must increase (row 12)"])
 
 
+# The error answers every route with a key can give (``responses=`` of the route decorators).
+AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorOut, "description": "no or unknown API key"},
+    403: {"model": ErrorOut, "description": "the key's role may not make this call"},
+}
+
+
 class JourneyAccepted(BaseModel):
     id: str = Field(examples=[JOURNEY_ID_EXAMPLE])
     status: Literal["queued", "running", "done", "failed"] = Field(
@@ -102,13 +109,57 @@ class SignProperties(BaseModel):
         None, description="the sign in each observing frame's rectified camera, metres")
 
 
-class SignFeature(BaseModel):
+class PointFeature(BaseModel):
+    """A GeoJSON Point feature; each kind of sign adds its ``properties``."""
+
     type: Literal["Feature"] = "Feature"
     id: str
     geometry: PointGeometry
+
+
+class FeatureCollection(BaseModel):
+    type: Literal["FeatureCollection"] = "FeatureCollection"
+
+
+class SignFeature(PointFeature):
     properties: SignProperties
 
 
-class SignCollection(BaseModel):
-    type: Literal["FeatureCollection"] = "FeatureCollection"
+class SignCollection(FeatureCollection):
     features: list[SignFeature]
+
+
+MapSignState = Literal["new", "confirmed", "possibly_removed"]
+
+
+class MapSignProperties(BaseModel):
+    model_config = ConfigDict(extra="allow", populate_by_name=True)
+
+    id: str = Field(examples=["ms-3f2a9c0d1e4b5a69"])
+    class_: str = Field(alias="class", examples=["stop"])
+    state: MapSignState
+    std_m: float = Field(description="horizontal 1-sigma of the fused position, metres")
+    n_journeys: int
+    n_observations: int
+    first_seen_at: datetime
+    last_seen_at: datetime
+    facing_deg: float | None = Field(
+        None, description="compass bearing its face points to (degrees clockwise from north), "
+                          "the circular mean of the journeys'; null when unknown")
+
+
+class MapSignFeature(PointFeature):
+    properties: MapSignProperties
+
+
+class MapSignCollection(FeatureCollection):
+    features: list[MapSignFeature]
+    next: str | None = Field(description="pass as `cursor` for the next page; null on the last")
+
+
+class MapChanges(BaseModel):
+    since: datetime
+    until: datetime = Field(description="pass as the next call's `since`")
+    created: list[MapSignFeature]
+    updated: list[MapSignFeature]
+    removed: list[dict[str, Any]] = Field(description="tombstones: {id, removed_at}")

@@ -50,6 +50,11 @@ def get_engine(url: str) -> Engine:
     return _sessionmaker(url).kw["bind"]
 
 
+def new_session(url: str) -> Session:
+    """A fresh session on the database at ``url``; the caller commits and closes it."""
+    return _sessionmaker(url)()
+
+
 @contextmanager
 def session_scope(url: str) -> Iterator[Session]:
     """A session that commits on success and rolls back on any exception."""
