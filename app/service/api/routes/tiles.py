@@ -14,13 +14,16 @@ from app.service.deps import SettingsDep
 router = APIRouter(prefix="/api/v1")
 
 
+TILE_DESCRIPTION = (
+    "Web Mercator tiles numbered as OpenStreetMap's. One layer `signs` of points with `id`, "
+    "`class`, `state` and `count` (1 for a sign); at low zoom, and in a tile with too many signs, "
+    "a point stands for a cluster: `count` signs, `id` the smallest of theirs, `class`/`state` "
+    "only when all members share one. Low-zoom tiles are cached until the map changes.")
+
+
 @router.get("/tiles/{z}/{x}/{y}.mvt", response_class=Response, dependencies=READER,
             summary="The map's signs as a vector tile (Mapbox Vector Tile)",
-            description="Web Mercator tiles numbered as OpenStreetMap's. One layer `signs` of "
-                        "points with `id`, `class`, `state` and `count` (1 for a sign); at low "
-                        "zoom, and in a tile with too many signs, a point stands for a cluster: "
-                        "`count` signs, `id` the smallest of theirs, `class`/`state` only when "
-                        "all members share one. Low-zoom tiles are cached until the map changes.",
+            description=TILE_DESCRIPTION,
             responses={200: {"content": {MEDIA_TYPE: {}}, "description": "the tile"},
                        400: {"model": ErrorOut, "description": "z, x or y out of range"},
                        **AUTH_ERRORS})
