@@ -43,6 +43,13 @@ class CalibrationOut(BaseModel):
     k2: float = Field(examples=[0.1])
 
 
+class StageReportOut(BaseModel):
+    stage: str = Field(examples=["calibrate"])
+    summary: str = Field(description="how the stage ended, one line",
+                         examples=["self-calibrated on turn 1: 48 of 52 images registered"])
+    details: list[str] = Field(description="one line per thing it tried")
+
+
 class JourneyOut(BaseModel):
     model_config = ConfigDict(json_schema_extra={"examples": [{
         "id": JOURNEY_ID_EXAMPLE, "status": "done", "stage": "done", "progress": 1.0, "error": None,
@@ -75,6 +82,10 @@ class JourneyOut(BaseModel):
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
+    report: list[StageReportOut] | None = Field(
+        None, description="what each pipeline stage did, in order (a failed journey's last entry "
+                          "is the stage that failed); null for journeys processed before reports "
+                          "existed")
 
 
 class PointGeometry(BaseModel):

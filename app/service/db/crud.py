@@ -25,11 +25,11 @@ def owned_upload(session: Session, owner_key_id: int | None, sha256: str) -> Jou
 
 
 def requeue_failed(session: Session, journey_id: str) -> bool:
-    """Put a failed journey back to queued, as new (attempts and error cleared); False if it
+    """Put a failed journey back to queued, as new (attempts, error and report cleared); False if it
     is not failed. The caller submits it to the queue after the commit."""
     return session.execute(
         update(JourneyRow).where(JourneyRow.id == journey_id, JourneyRow.status == "failed")
-        .values(status="queued", stage=None, progress=0.0, error=None, attempts=0)
+        .values(status="queued", stage=None, progress=0.0, error=None, attempts=0, report=None)
     ).rowcount == 1
 
 

@@ -94,8 +94,10 @@ class JourneyRow(Base):
     heartbeat_at: Mapped[datetime | None]
     # Incremented by every claim; a run only writes while the row still carries its own attempt.
     attempts: Mapped[int] = mapped_column(Integer, default=0)
-    # Set when this journey's self-calibration disagrees with the camera's stored one (fusion_job).
+    # Set when this journey's self-calibration disagrees with the camera's stored one (jobs.fusion).
     calibration_flag: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    # What each pipeline stage did (StageReport.to_json() each), done or failed; NULL before 0006.
+    report: Mapped[list[Any] | None] = mapped_column(JSON)
 
 
 class JourneySignRow(Base):

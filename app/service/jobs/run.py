@@ -9,7 +9,7 @@ import time
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.run import process_journey
-from app.pipeline.types import PipelineError
+from app.pipeline.types import PipelineError, StageReport
 from app.service import storage
 from app.service.jobs import fusion, state
 from app.service.db.session import session_scope
@@ -99,7 +99,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
                     journey_id, attempt)
     except PipelineError as exc:
         log.info("journey %s: failed at %s: %s", journey_id, exc.stage, exc.reason)
-        _fail(url, journey_id, attempt, exc.stage, exc.reason)
+        _fail(url, journey_id, attempt, exc.stage, exc.reason, exc.report)
     except Exception as exc:
         log.exception("journey %s: internal error during %s", journey_id, stage)
         _fail(url, journey_id, attempt, None,
@@ -109,6 +109,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str) -> None:
+def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str,
+          report: list[StageReport] | None = None) -> None:
     with session_scope(url) as session:
-        state.fail(session, journey_id, attempt, stage, reason)
+        state.fail(session, journey_id, attempt, stage, reason, report)

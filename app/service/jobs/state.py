@@ -13,7 +13,7 @@ from datetime import datetime, timedelta
 from sqlalchemy import and_, delete, or_, select, update
 from sqlalchemy.orm import Session
 
-from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult
+from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult, StageReport
 from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow, utc_now
 
 
@@ -86,8 +86,13 @@ def beat(session: Session, journey_id: str, attempt: int, stage: str | None = No
                            ).rowcount == 1
 
 
-def fail(session: Session, journey_id: str, attempt: int, stage: str | None, reason: str) -> bool:
-    values: dict = {"status": "failed", "error": reason, "finished_at": utc_now()}
+def fail(session: Session, journey_id: str, attempt: int, stage: str | None, reason: str,
+         report: list[StageReport] | None = None) -> bool:
+    """Mark this run's journey failed at ``stage`` (None: not a pipeline stage) with ``reason`` and
+    the reports of the stages that ran (None: the pipeline gave none, e.g. an internal error);
+    False if this run lost the job."""
+    values: dict = {"status": "failed", "error": reason, "finished_at": utc_now(),
+                    "report": None if report is None else [r.to_json() for r in report]}
     if stage is not None:
         values["stage"] = stage[:64]
     return session.execute(update(JourneyRow).where(_mine(journey_id, attempt)).values(**values)
@@ -106,7 +111,8 @@ def latest_calibration(session: Session, camera_id: str, exclude_journey_id: str
     ).first()
     if row is None:
         return None
-    return CameraModel(row.width, row.height, row.fx, row.fy, row.cx, row.cy, row.k1, row.k2)
+    return CameraModel(width=row.width, height=row.height, fx=row.fx, fy=row.fy, cx=row.cx,
+                       cy=row.cy, k1=row.k1, k2=row.k2)
 
 
 def _finite_or_none(value: float | None) -> float | None:
@@ -151,5 +157,6 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     row.calibration = calib.camera.params()
     row.calibration_source = calib.source
     row.timings_s = {k: _finite_or_none(v) for k, v in timings_s.items()}
+    row.report = [r.to_json() for r in result.report]
     row.finished_at = row.heartbeat_at = now
     return True
