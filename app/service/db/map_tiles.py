@@ -49,8 +49,8 @@ class Tile:
 
     def bbox(self) -> BBox:
         n = 2 ** self.z
-        return BBox(self.x / n * 360.0 - 180.0, _lat(self.y + 1, n),
-                    (self.x + 1) / n * 360.0 - 180.0, _lat(self.y, n))
+        return BBox(min_lon=self.x / n * 360.0 - 180.0, min_lat=_lat(self.y + 1, n),
+                    max_lon=(self.x + 1) / n * 360.0 - 180.0, max_lat=_lat(self.y, n))
 
     def pixels(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """(N, 2) tile coordinates, y down, 0..EXTENT."""

@@ -58,8 +58,8 @@ class Region:
             return None
         dlat = margin_m / M_PER_DEG_LAT
         dlon = margin_m / (M_PER_DEG_LAT * max(0.01, math.cos(math.radians(float(lat.mean())))))
-        return cls(float(lat.min()) - dlat, float(lon.min()) - dlon,
-                   float(lat.max()) + dlat, float(lon.max()) + dlon)
+        return cls(min_lat=float(lat.min()) - dlat, min_lon=float(lon.min()) - dlon,
+                   max_lat=float(lat.max()) + dlat, max_lon=float(lon.max()) + dlon)
 
     def contains(self, lat_col, lon_col):
         return and_(lat_col.between(self.min_lat, self.max_lat),
@@ -272,8 +272,9 @@ def fuse_region(session: Session, region: Region, settings: Settings) -> FusionS
     for map_id in removed:
         existing[map_id].removed_at = existing[map_id].updated_at = now
     id_of_key = {journey_key(j): j.id for _, j in rows.values()}
-    return FusionSummary(len(signs), created, updated, removed, unchanged,
-                         sorted(id_of_key.get(k, k) for k in fused.biased_journeys))
+    return FusionSummary(n_journey_signs=len(signs), created=created, updated=updated,
+                         removed=removed, unchanged=unchanged,
+                         biased_journeys=sorted(id_of_key.get(k, k) for k in fused.biased_journeys))
 
 
 def _log(what: str, summary: FusionSummary) -> None:
