@@ -1,5 +1,5 @@
 """``signmap`` command line: the pipeline locally, the synthetic generator, the service and the
-benchmarks. Service subcommands live in ``app.service.commands`` so the pipeline CLI does not import
+benchmarks. Service subcommands live in ``app.commands.service`` so the pipeline CLI does not import
 the service stack; ``signmap process`` runs in ``app.process_command`` (its exit codes)."""
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_process(sub)
     _add_synth(sub)
     try:
-        from app.service import commands as service_commands
+        from app.commands import service as service_commands
     except ImportError:  # the service extras are not installed: pipeline-only CLI
         service_commands = None
     if service_commands is not None:

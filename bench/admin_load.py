@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy import insert
 
-from app.service.db import session_scope, upgrade
-from app.service.models import (STATUSES, CalibrationRecord, Journey, JourneySign, MapSign,
-                                MapSignMember, utc_now)
+from app.service.db.session import session_scope, upgrade
+from app.service.db.models import (STATUSES, CalibrationRow, JourneyRow, JourneySignRow, MapSignRow,
+                                MapSignMemberRow, utc_now)
 from app.settings import Settings
 
 LAT0, LON0 = 49.0, 8.4
@@ -85,9 +85,9 @@ def fill(url: str, n_journeys: int, n_signs: int, seed: int = 0) -> list[str]:
     members = [dict(map_sign_id=m["id"], journey_sign_id=s["id"], weight=1.0)
                for m, s in zip(map_signs, signs)]
     with session_scope(url) as session:
-        session.execute(insert(Journey), journeys)
-        session.execute(insert(CalibrationRecord), calibrations)
-        for table, rows in ((JourneySign, signs), (MapSign, map_signs), (MapSignMember, members)):
+        session.execute(insert(JourneyRow), journeys)
+        session.execute(insert(CalibrationRow), calibrations)
+        for table, rows in ((JourneySignRow, signs), (MapSignRow, map_signs), (MapSignMemberRow, members)):
             for start in range(0, len(rows), 10_000):
                 session.execute(insert(table), rows[start:start + 10_000])
     return ids
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from fastapi.testclient import TestClient
 
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
     data_dir = Path(args.out or tempfile.mkdtemp(prefix="signmap-admin-load-"))
     admin_key = secrets.token_urlsafe(16)
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         "map query, street viewport": f"/admin/api/signs?bbox={street}&limit=2000",
         "map query, city viewport": f"/admin/api/signs?bbox={city}&limit=2000",
     }
-    with TestClient(create_app(settings)) as client:
+    with TestClient(create_service_app(settings)) as client:
         client.post("/admin/login", data={"key": admin_key})
         print(f"{'page':32s} {'median ms':>10s} {'max ms':>8s} {'kB':>7s}")
         for name, path in pages.items():

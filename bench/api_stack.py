@@ -21,8 +21,8 @@ from sqlalchemy import func, insert, select
 
 from app.pipeline.types import CameraModel
 from app.service.auth import create_key
-from app.service.db import session_scope, temporary_database, upgrade
-from app.service.models import Journey, JourneySign, MapSign, utc_now
+from app.service.db.session import session_scope, temporary_database, upgrade
+from app.service.db.models import JourneyRow, JourneySignRow, MapSignRow, utc_now
 from app.settings import Settings
 from app.synth.journey import SynthConfig
 from bench.serve import child_env, serve, signmap_child
@@ -105,7 +105,7 @@ def seed_map(url: str, n: int, seed: int = 0) -> None:
             for i in range(n)]
     with session_scope(url) as session:
         for start in range(0, len(rows), 5000):
-            session.execute(insert(MapSign), rows[start:start + 5000])
+            session.execute(insert(MapSignRow), rows[start:start + 5000])
 
 
 def bundles(cache_dir: Path, with_turn: bool = True) -> tuple[bytes, bytes]:
@@ -130,8 +130,8 @@ def variant(bundle: bytes, vehicle_id: str) -> bytes:
 
 def journey_states(url: str, ids: set[str]) -> dict[str, str]:
     with session_scope(url) as session:
-        return dict(session.execute(select(Journey.id, Journey.status)
-                                    .where(Journey.id.in_(ids))).all())
+        return dict(session.execute(select(JourneyRow.id, JourneyRow.status)
+                                    .where(JourneyRow.id.in_(ids))).all())
 
 
 def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -> dict:
@@ -143,12 +143,12 @@ def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -
     url = service.settings.effective_database_url
     ids = set(accepted)
     with session_scope(url) as session:
-        rows = {r.id: r for r in session.scalars(select(Journey).where(Journey.id.in_(ids)))}
+        rows = {r.id: r for r in session.scalars(select(JourneyRow).where(JourneyRow.id.in_(ids)))}
         sign_rows = dict(session.execute(
-            select(JourneySign.journey_id, func.count()).where(JourneySign.journey_id.in_(ids))
-            .group_by(JourneySign.journey_id)).all())
-        twins = session.execute(select(Journey.bundle_sha256).group_by(
-            Journey.owner_key_id, Journey.bundle_sha256).having(func.count() > 1)).all()
+            select(JourneySignRow.journey_id, func.count()).where(JourneySignRow.journey_id.in_(ids))
+            .group_by(JourneySignRow.journey_id)).all())
+        twins = session.execute(select(JourneyRow.bundle_sha256).group_by(
+            JourneyRow.owner_key_id, JourneyRow.bundle_sha256).having(func.count() > 1)).all()
     log_text = "\n".join(p.read_text(errors="replace") for p in service.logs if p.exists())
     endings = Counter()
     for line in log_text.splitlines():
@@ -177,6 +177,6 @@ _ENDED = re.compile(r"journey (\S+): (?:done in |failed at |internal error durin
 
 
 def _ended_id(line: str) -> list[str]:
-    """The journey id of a job's last log line (app.service.jobs: done, failed or crashed)."""
+    """The journey id of a job's last log line (app.service.jobs.run: done, failed or crashed)."""
     return _ENDED.findall(line)
 

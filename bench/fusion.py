@@ -28,8 +28,9 @@ import numpy as np
 from app.fusion import FusionConfig, JourneySign, MapSign, fuse_map
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
-from app.service import fusion_job, map_rows
-from app.service.models import Journey as JourneyRow, JourneySign as JourneySignRow
+from app.service.db import map_rows
+from app.service.jobs import fusion
+from app.service.db.models import JourneyRow, JourneySignRow
 from app.synth.journey import SynthConfig
 from bench import plots
 from bench.metrics import truth_frame
@@ -138,11 +139,11 @@ def rerun_with(spec: JourneySpec, failed: JourneyRun, cache_dir: Path, base: Pip
 
 def journey_signs(run: JourneyRun, rank: int) -> list[JourneySign]:
     """The run's signs as the service hands them to fusion (``map_rows.journey_sign`` of the rows
-    ``jobstate.store_result`` would write). The service's journey key is ``<bundle sha256>/<id>``;
+    ``state.store_result`` would write). The service's journey key is ``<bundle sha256>/<id>``;
     here the rank comes first so that the bench chooses the order fusion processes journeys in."""
     if run.result is None:
         return []
-    captured_s = fusion_job.captured_at_s(JourneyRow(captured_at=run.synth.captured_at))
+    captured_s = fusion.captured_at_s(JourneyRow(captured_at=run.synth.captured_at))
     rows = [JourneySignRow(id=f"{run.name}:{s.track_id}", cls=s.cls, lat_deg=float(s.lat_deg),
                            lon_deg=float(s.lon_deg),
                            alt_m=float(s.alt_m) if s.alt_m is not None and np.isfinite(s.alt_m)

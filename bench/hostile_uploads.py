@@ -24,9 +24,9 @@ from pathlib import Path
 _CHILD = r"""
 import json, resource, sys, tempfile, time
 from fastapi.testclient import TestClient
-from app.service.app import create_app
+from app.commands.service import create_service_app
 from app.service.auth import create_key
-from app.service.db import session_scope, upgrade
+from app.service.db.session import session_scope, upgrade
 from app.settings import Settings
 
 def rss_mb():
@@ -44,7 +44,7 @@ upgrade(settings.effective_database_url)
 with session_scope(settings.effective_database_url) as session:
     key = create_key(session, "fleet", "bench")
 data = open(sys.argv[1], "rb").read()
-with TestClient(create_app(settings)) as client:
+with TestClient(create_service_app(settings)) as client:
     client.get("/api/v1/health")
     before_mb, written0 = rss_mb(), wchar()
     t0 = time.perf_counter()

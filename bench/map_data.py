@@ -12,8 +12,8 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 from sqlalchemy import func, select, text
 
-from app.service.db import get_engine, session_scope, upgrade
-from app.service.models import Journey, MapSign
+from app.service.db.session import get_engine, session_scope, upgrade
+from app.service.db.models import JourneyRow, MapSignRow
 
 # A 4 x 6 degree country with 20 cities; 70 % of the signs within a few km of a city centre.
 REGION = (6.0, 48.0, 12.0, 52.0)  # min lon, min lat, max lon, max lat
@@ -84,10 +84,10 @@ def _holds(url: str, m: SyntheticMap) -> bool:
     """The database holds exactly the map of (n, seed); refuses one that holds journeys (a real
     service's database: the loader replaces the whole map)."""
     with session_scope(url) as session:
-        if session.scalar(select(func.count()).select_from(Journey)):
+        if session.scalar(select(func.count()).select_from(JourneyRow)):
             raise ValueError(f"{url.split('@')[-1]} holds journeys: not a bench database")
-        return (session.scalar(select(func.count()).select_from(MapSign)) == m.n
-                and session.get(MapSign, first_id(m)) is not None)
+        return (session.scalar(select(func.count()).select_from(MapSignRow)) == m.n
+                and session.get(MapSignRow, first_id(m)) is not None)
 
 
 def _copy_postgres(url: str, m: SyntheticMap) -> None:

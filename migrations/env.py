@@ -1,5 +1,5 @@
 """Alembic environment. The URL is ``config.attributes["url"]`` when called from
-``app.service.db.upgrade``, else the settings' database URL (plain ``alembic upgrade head``)."""
+``app.service.db.session.upgrade``, else the settings' database URL (plain ``alembic upgrade head``)."""
 
 from logging.config import fileConfig
 
@@ -7,7 +7,7 @@ from alembic import context
 from sqlalchemy import pool
 from sqlalchemy.engine import create_engine
 
-from app.service.models import Base
+from app.service.db.models import Base
 
 config = context.config
 url = config.attributes.get("url")

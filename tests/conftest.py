@@ -26,8 +26,8 @@ import pytest
 from sqlalchemy import func, make_url, select
 
 from app.service.auth import create_key, key_sha256
-from app.service.db import session_scope, temporary_database, upgrade
-from app.service.models import ApiKey, Journey
+from app.service.db.session import session_scope, temporary_database, upgrade
+from app.service.db.models import ApiKeyRow, JourneyRow
 from app.settings import Settings
 from bench.serve import child_env
 from tests.real_services import register_real_service_skips, service_unavailable
@@ -165,16 +165,16 @@ class Stack:
     def client(self):
         from fastapi.testclient import TestClient
 
-        from app.service.app import create_app
+        from app.commands.service import create_service_app
 
-        with TestClient(create_app(self.settings)) as client:
+        with TestClient(create_service_app(self.settings)) as client:
             yield client
 
     def count_journeys(self, key: str) -> int:
         """Journeys owned by ``key`` (the PostgreSQL database is shared by the whole session)."""
         with session_scope(self.url) as session:
-            return session.scalar(select(func.count()).select_from(Journey).join(ApiKey).where(
-                ApiKey.key_sha256 == key_sha256(key)))
+            return session.scalar(select(func.count()).select_from(JourneyRow).join(ApiKeyRow).where(
+                ApiKeyRow.key_sha256 == key_sha256(key)))
 
     def stored_files(self) -> list[str]:
         """Every file under bundles/ and incoming/ (a rejected upload must leave none)."""

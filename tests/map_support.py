@@ -1,7 +1,7 @@
 """A small synthetic world for the map-fusion tests: a straight road heading east with signs on both
 sides, and journeys over it as the pipeline would return them (truth + per-journey GPS offset +
 per-sign noise, aligned camera poses looking down the road), stored and fused through the same
-``fusion_job.store_and_fuse`` the job calls."""
+``fusion.store_and_fuse`` the job calls."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import numpy as np
 
 from app.pipeline.geodesy import frame_at
 from app.pipeline.types import (Calibration, CameraModel, JourneyResult, Sign, SignObservation)
-from app.service import fusion_job, jobstate
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.jobs import fusion, state
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 
 CAMERA = CameraModel(64, 48, 50.0, 51.0, 31.5, 23.5, -0.1, 0.01)
 CLASSES = ("stop", "yield", "speed_50")
@@ -97,14 +97,14 @@ def insert_done_journey(settings, journey_data, journey_id: str, day: int,
     the job's own store+fuse."""
     url = settings.effective_database_url
     with session_scope(url) as session:
-        session.add(Journey(id=journey_id, owner_key_id=None, camera_id="test-cam",
+        session.add(JourneyRow(id=journey_id, owner_key_id=None, camera_id="test-cam",
                             captured_at=(T0 + timedelta(days=day)).isoformat(),
                             bundle_sha256=f"{day:04d}" + "0" * 60, bundle_bytes=1,
                             status="queued", progress=0.0, n_frames=5, attempts=0))
     with session_scope(url) as session:
-        attempt = jobstate.claim(session, journey_id, 60, 3)
+        attempt = state.claim(session, journey_id, 60, 3)
     assert attempt is not None
-    assert fusion_job.store_and_fuse(url, journey_id, attempt, journey_data, result,
+    assert fusion.store_and_fuse(url, journey_id, attempt, journey_data, result,
                                      {"total_s": 1.0}, known_camera, settings)
 
 
@@ -112,14 +112,14 @@ def store_only(settings, journey_data, journey_id: str, day: int, result: Journe
     """Like ``insert_done_journey`` but without fusing (a job that stored and then died)."""
     url = settings.effective_database_url
     with session_scope(url) as session:
-        session.add(Journey(id=journey_id, owner_key_id=None, camera_id="test-cam",
+        session.add(JourneyRow(id=journey_id, owner_key_id=None, camera_id="test-cam",
                             captured_at=(T0 + timedelta(days=day)).isoformat(),
                             bundle_sha256=f"{day:04d}" + "1" * 60, bundle_bytes=1,
                             status="queued", progress=0.0, n_frames=5, attempts=0))
     with session_scope(url) as session:
-        attempt = jobstate.claim(session, journey_id, 60, 3)
+        attempt = state.claim(session, journey_id, 60, 3)
     with session_scope(url) as session:
-        assert fusion_job.store_journey(session, journey_id, attempt, journey_data, result,
+        assert fusion.store_journey(session, journey_id, attempt, journey_data, result,
                                         {"total_s": 1.0}, None, settings)
 
 

@@ -7,7 +7,7 @@ import secrets
 
 import numpy as np
 
-from app.service.db import session_scope
+from app.service.db.session import session_scope
 from tests import bundle_factory as bf
 
 
@@ -33,17 +33,17 @@ def made_result(signs: list[tuple[str, str, float, float, float | None]], source
 def finish(stack, journey_id: str, result, files: dict | None = None) -> int:
     """Do what a worker does with ``result``: claim the journey and store it; returns the attempt."""
     from app.pipeline.bundle import read_bundle
-    from app.service import jobstate
+    from app.service.jobs import state
 
     work = stack.settings.data_dir / "test-extract" / secrets.token_hex(4)
     (work / "b.zip").parent.mkdir(parents=True)
     (work / "b.zip").write_bytes(bf_zip(files))
     journey = read_bundle(work / "b.zip", work / "x", decode_images=False)
     with session_scope(stack.url) as session:
-        attempt = jobstate.claim(session, journey_id, 60, 3)
+        attempt = state.claim(session, journey_id, 60, 3)
     assert attempt is not None
     with session_scope(stack.url) as session:
-        assert jobstate.store_result(session, journey_id, attempt, journey, result,
+        assert state.store_result(session, journey_id, attempt, journey, result,
                                      {"total_s": 2.0})
     return attempt
 

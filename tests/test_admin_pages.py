@@ -10,11 +10,11 @@ import pytest
 from sqlalchemy import func, select
 
 from app.service.admin.session import COOKIE
-from app.service.db import session_scope
-from app.service.models import (AdminSession, ApiKey, CalibrationRecord, Journey, JourneyCoverage,
-                                JourneySign)
+from app.service.db.session import session_scope
+from app.service.db.models import (AdminSessionRow, ApiKeyRow, CalibrationRow, JourneyRow, CoverageRow,
+                                JourneySignRow)
 from tests.browser.seed import add_journey
-from app.service.map_tiles import decode
+from app.service.db.map_tiles import decode
 from tests.conftest import ADMIN_KEY, auth, sqlite_stack
 
 PAGES = ["/admin", "/admin/journeys", "/admin/map", "/admin/cameras",
@@ -49,7 +49,7 @@ def test_actions_need_a_session(client, stack):
         answer = client.post(f"/admin/journeys/{journey_id}/{action}", follow_redirects=False)
         assert answer.status_code == 303 and answer.headers["location"] == "/admin/login"
     with session_scope(stack.url) as session:
-        assert session.get(Journey, journey_id).status == "failed"
+        assert session.get(JourneyRow, journey_id).status == "failed"
 
 
 @pytest.mark.parametrize("role", ["fleet", "reader", None])
@@ -71,12 +71,12 @@ def test_sign_in_sets_a_strict_http_only_cookie_and_sign_out_ends_it(client, sta
     value = answer.cookies[COOKIE]
     assert client.get("/admin/journeys").status_code == 200
     with session_scope(stack.url) as session:
-        assert session.scalar(select(func.count()).select_from(ApiKey)) == 0  # no key was made
-        assert session.scalar(select(func.count()).select_from(AdminSession)) == 1
+        assert session.scalar(select(func.count()).select_from(ApiKeyRow)) == 0  # no key was made
+        assert session.scalar(select(func.count()).select_from(AdminSessionRow)) == 1
 
     assert client.post("/admin/logout", follow_redirects=False).status_code == 303
     with session_scope(stack.url) as session:
-        assert session.scalar(select(func.count()).select_from(AdminSession)) == 0
+        assert session.scalar(select(func.count()).select_from(AdminSessionRow)) == 0
     client.cookies.set(COOKIE, value, path="/admin")  # a replayed cookie is dead after sign-out
     assert client.get("/admin/journeys", follow_redirects=False).status_code == 303
 
@@ -151,7 +151,7 @@ def test_journey_page_shows_track_signs_calibration_and_crops(client, stack):
 def test_journey_page_shows_the_estimated_trajectory_when_stored(client, stack):
     journey_id = add_journey(stack.settings, "done")
     with session_scope(stack.url) as session:
-        session.merge(JourneyCoverage(
+        session.merge(CoverageRow(
             journey_id=journey_id, journey_key="k", captured_at_s=0.0, origin_lat_deg=49.0,
             origin_lon_deg=8.4, origin_alt_m=100.0, camera={}, frame_ids=["000000", "000001"],
             poses=[[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0], [1, 0, 0, 100, 0, 1, 0, 0, 0, 0, 1, 0]]))
@@ -217,7 +217,7 @@ def test_retry_requeues_a_failed_journey(client, stack):
     assert answer.status_code == 303
     assert answer.headers["location"] == "/admin/journeys?status=failed"  # back to the same list
     with session_scope(stack.url) as session:
-        row = session.get(Journey, failed)
+        row = session.get(JourneyRow, failed)
         assert (row.status, row.error, row.attempts, row.progress) == ("queued", None, 0, 0.0)
     assert client.post(f"/admin/journeys/{done}/retry").status_code == 409
 
@@ -228,11 +228,11 @@ def test_delete_removes_the_journey_its_signs_and_calibration(client, stack):
     sign_in(client)
     assert client.post(f"/admin/journeys/{doomed}/delete", follow_redirects=False).status_code == 303
     with session_scope(stack.url) as session:
-        assert session.get(Journey, doomed) is None
-        assert session.scalar(select(func.count()).select_from(JourneySign)
-                              .where(JourneySign.journey_id == doomed)) == 0
-        assert session.scalar(select(func.count()).select_from(CalibrationRecord)
-                              .where(CalibrationRecord.journey_id == doomed)) == 0
-        assert session.scalar(select(func.count()).select_from(JourneySign)
-                              .where(JourneySign.journey_id == kept)) == 2
+        assert session.get(JourneyRow, doomed) is None
+        assert session.scalar(select(func.count()).select_from(JourneySignRow)
+                              .where(JourneySignRow.journey_id == doomed)) == 0
+        assert session.scalar(select(func.count()).select_from(CalibrationRow)
+                              .where(CalibrationRow.journey_id == doomed)) == 0
+        assert session.scalar(select(func.count()).select_from(JourneySignRow)
+                              .where(JourneySignRow.journey_id == kept)) == 2
     assert client.post(f"/admin/journeys/{doomed}/delete").status_code == 404

@@ -13,8 +13,8 @@ from sqlalchemy import delete, select, text, update
 
 from app.service.auth import key_sha256
 from app.service.admin.session import COOKIE
-from app.service.db import get_engine, session_scope, upgrade
-from app.service.models import AdminSession, ApiKey, Journey, utc_now
+from app.service.db.session import get_engine, session_scope, upgrade
+from app.service.db.models import AdminSessionRow, ApiKeyRow, JourneyRow, utc_now
 from tests.conftest import ADMIN_KEY, Stack, auth, make_settings
 
 
@@ -50,8 +50,8 @@ def _refused_everywhere(client, value: str) -> None:
 
 def _rows(stack: Stack, value: str) -> int:
     with session_scope(stack.url) as session:
-        return len(session.scalars(select(AdminSession).where(
-            AdminSession.token_sha256 == key_sha256(value))).all())
+        return len(session.scalars(select(AdminSessionRow).where(
+            AdminSessionRow.token_sha256 == key_sha256(value))).all())
 
 
 def test_the_cookie_is_not_an_api_key(stack):
@@ -63,7 +63,7 @@ def test_the_cookie_is_not_an_api_key(stack):
         assert client.get("/admin/api/signs?bbox=0,0,1,1").status_code == 200
     assert _rows(stack, value) == 1
     with session_scope(stack.url) as session:
-        assert session.scalars(select(ApiKey).where(ApiKey.name.like("dashboard%"))).all() == []
+        assert session.scalars(select(ApiKeyRow).where(ApiKeyRow.name.like("dashboard%"))).all() == []
 
 
 def test_an_expired_session_ends_at_once_and_is_swept(stack, tmp_path):
@@ -86,13 +86,13 @@ def test_expired_sessions_are_swept_at_start_and_periodically(stack):
     with stack.client() as client:
         old, fresh = _sign_in(client), _sign_in(client)
     with session_scope(stack.url) as session:
-        session.execute(update(AdminSession).where(AdminSession.token_sha256 == key_sha256(old))
+        session.execute(update(AdminSessionRow).where(AdminSessionRow.token_sha256 == key_sha256(old))
                         .values(expires_at=utc_now() - timedelta(seconds=1)))
     with stack.client():  # start
         assert (_rows(stack, old), _rows(stack, fresh)) == (0, 1)
         with session_scope(stack.url) as session:
-            session.execute(update(AdminSession).where(
-                AdminSession.token_sha256 == key_sha256(fresh))
+            session.execute(update(AdminSessionRow).where(
+                AdminSessionRow.token_sha256 == key_sha256(fresh))
                 .values(expires_at=utc_now() - timedelta(seconds=1)))
         deadline = time.monotonic() + 10
         while _rows(stack, fresh) and time.monotonic() < deadline:
@@ -115,7 +115,7 @@ def test_deleting_the_key_ends_its_sessions(stack):
         value = _sign_in(client, key)
         assert client.get("/admin/cameras").status_code == 200
         with session_scope(stack.url) as session:
-            session.execute(delete(ApiKey).where(ApiKey.key_sha256 == key_sha256(key)))
+            session.execute(delete(ApiKeyRow).where(ApiKeyRow.key_sha256 == key_sha256(key)))
         assert client.get("/admin/cameras", follow_redirects=False).status_code == 303
     assert _rows(stack, value) == 0  # gone with the key (ON DELETE CASCADE)
 
@@ -135,7 +135,7 @@ def test_the_migration_revokes_the_old_session_keys(tmp_path):
             "3, :t, 1)"), {"t": utc_now()})
     upgrade(stack.url)
     with session_scope(stack.url) as session:
-        assert [k.name for k in session.scalars(select(ApiKey))] == ["van-3"]
-        assert session.get(Journey, "j1").owner_key_id is None
+        assert [k.name for k in session.scalars(select(ApiKeyRow))] == ["van-3"]
+        assert session.get(JourneyRow, "j1").owner_key_id is None
     with stack.client() as client:
         assert client.get("/api/v1/journeys", headers=auth("leaked")).status_code == 401

@@ -1,5 +1,5 @@
 """GET /journeys/{id}, /journeys/{id}/signs and /signs?bbox= answer exactly the contract's shapes,
-from rows stored the way a worker stores them (``jobstate.store_result``)."""
+from rows stored the way a worker stores them (``state.store_result``)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from sqlalchemy import text
 from sqlalchemy.dialects import postgresql
 
-from app.service.db import session_scope
-from app.service.queries import BBox, map_signs_query
+from app.service.db.session import session_scope
+from app.service.db.queries import BBox, map_signs_query
 from tests.conftest import ADMIN_KEY, auth, upload
 from tests.service_support import bf_zip, finish, made_result
 

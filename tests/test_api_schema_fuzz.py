@@ -37,9 +37,9 @@ from schemathesis.specs.openapi.checks import (content_type_conformance,
 from sqlalchemy import select
 
 from app.pipeline.bundle import read_bundle
-from app.service.app import create_app
-from app.service.db import session_scope
-from app.service.models import Journey, MapSign
+from app.commands.service import create_service_app
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, MapSignRow
 from tests import bundle_factory as bf
 from tests import map_support as ms
 from tests.conftest import ADMIN_KEY, Stack, auth, make_settings, sqlite_stack, upload
@@ -53,7 +53,7 @@ CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,
 ROOT = Path(tempfile.mkdtemp(prefix="signmap-fuzz-"))
 atexit.register(shutil.rmtree, ROOT, ignore_errors=True)
 SQLITE = sqlite_stack(ROOT / "data")
-SQLITE_APP = create_app(SQLITE.settings)
+SQLITE_APP = create_service_app(SQLITE.settings)
 schema = schemathesis.openapi.from_asgi("/openapi.json", SQLITE_APP)
 STATUSES: Counter = Counter()  # (backend, operation, status) of every call, for the coverage test
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, database=None,
@@ -79,8 +79,8 @@ def _seed(stack: Stack, app: FastAPI) -> Target:
     ms.insert_done_journey(stack.settings, _journey_data(stack), f"fuzz-{secrets.token_hex(4)}",
                            0, ms.journey_result(world, np.random.default_rng(0)))
     with session_scope(stack.url) as session:
-        sign_id = session.scalars(select(MapSign.id).where(
-            MapSign.lat_deg.between(world.lat0 - 0.01, world.lat0 + 0.01))).first()
+        sign_id = session.scalars(select(MapSignRow.id).where(
+            MapSignRow.lat_deg.between(world.lat0 - 0.01, world.lat0 + 0.01))).first()
     return Target(stack, app, keys, {"journey_id": journey_id, "sign_id": sign_id})
 
 
@@ -101,14 +101,14 @@ def sqlite_target():
 def postgres_target(own_pg_url, tmp_path_factory):
     stack = Stack("postgres", make_settings(tmp_path_factory.mktemp("fuzz-pg") / "data",
                                             database_url=own_pg_url))
-    return _seed(stack, create_app(stack.settings))
+    return _seed(stack, create_service_app(stack.settings))
 
 
 def _deletable_journey(stack: Stack) -> str:
     """A finished journey of its own, for one DELETE to remove (the seeded ones stay)."""
     journey_id = f"fuzz-del-{secrets.token_hex(4)}"
     with session_scope(stack.url) as session:
-        session.add(Journey(id=journey_id, owner_key_id=None, camera_id="fuzz-cam",
+        session.add(JourneyRow(id=journey_id, owner_key_id=None, camera_id="fuzz-cam",
                             bundle_sha256=secrets.token_hex(32), bundle_bytes=1,
                             status="failed", progress=0.0, n_frames=5, attempts=1))
     return journey_id

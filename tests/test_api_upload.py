@@ -14,8 +14,8 @@ import pytest
 import uvicorn
 from sqlalchemy import update
 
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from tests import bundle_factory as bf
 from tests.conftest import auth, sqlite_stack
 
@@ -95,13 +95,13 @@ def _live_server(app):
 def test_over_the_limit_while_streaming_is_413(tmp_path):
     """The body's chunks stop 128 KiB past the limit and the request never ends: a server that
     read the whole body before checking would never answer."""
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
     stack = sqlite_stack(tmp_path / "data", max_upload_mb=1)
     key = stack.key("fleet")
     head = (b"--XyZ\r\nContent-Disposition: form-data; name=\"bundle\"; filename=\"j.zip\"\r\n"
             b"Content-Type: application/zip\r\n\r\n")
-    with _live_server(create_app(stack.settings)) as port:
+    with _live_server(create_service_app(stack.settings)) as port:
         with socket.create_connection(("127.0.0.1", port), timeout=30) as conn:
             conn.sendall(b"POST /api/v1/journeys HTTP/1.1\r\nHost: test\r\n"
                          b"Authorization: Bearer " + key.encode() + b"\r\n"
@@ -146,7 +146,7 @@ def test_valid_upload_is_queued_and_stored_once(stack):
     assert stack.stored_files() == [f"bundles/{sha}.zip"]
     assert (stack.settings.data_dir / "bundles" / f"{sha}.zip").read_bytes() == data
     with session_scope(stack.url) as session:
-        row = session.get(Journey, body["id"])
+        row = session.get(JourneyRow, body["id"])
         assert (row.bundle_sha256, row.bundle_bytes, row.attempts) == (sha, len(data), 0)
 
 
@@ -171,7 +171,7 @@ def test_reupload_of_a_failed_journey_queues_it_again(stack):
     with stack.client() as client:
         journey_id = _post(client, key, data).json()["id"]
         with session_scope(stack.url) as session:
-            session.execute(update(Journey).where(Journey.id == journey_id).values(
+            session.execute(update(JourneyRow).where(JourneyRow.id == journey_id).values(
                 status="failed", error="no turn", attempts=1))
         again = _post(client, key, data)
         body = client.get(f"/api/v1/journeys/{journey_id}", headers=auth(key)).json()

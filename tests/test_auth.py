@@ -8,8 +8,8 @@ import sys
 
 from sqlalchemy import select
 
-from app.service.db import session_scope
-from app.service.models import ApiKey
+from app.service.db.session import session_scope
+from app.service.db.models import ApiKeyRow
 from tests import bundle_factory as bf
 from tests.conftest import ADMIN_KEY, REPO, auth, settings_env, sqlite_stack
 
@@ -93,7 +93,7 @@ def test_keys_create_prints_a_working_key_stored_hashed(tmp_path):
     key = out.stdout.strip()
     assert len(key) >= 40 and "\n" not in key
     with session_scope(stack.url) as session:
-        rows = session.scalars(select(ApiKey)).all()
+        rows = session.scalars(select(ApiKeyRow)).all()
         assert [(r.name, r.role) for r in rows] == [("van-3", "fleet")]
         assert key not in (rows[0].key_sha256, rows[0].name)
     with stack.client() as client:

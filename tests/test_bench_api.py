@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from bench.api_load import Options, ok, run_api_bench
 from bench.api_stack import Service, account
 from tests.conftest import PG_URL, REDIS_URL, sqlite_stack
@@ -57,11 +57,11 @@ def test_bench_api_smoke(request, tmp_path, synth_cache, backend):
 def test_the_accounting_reports_lost_and_twice_ended_uploads(tmp_path):
     stack = sqlite_stack(tmp_path / "data")
     with session_scope(stack.url) as session:
-        session.add(Journey(id="j-twice", owner_key_id=None, camera_id="c", bundle_sha256="0" * 64,
+        session.add(JourneyRow(id="j-twice", owner_key_id=None, camera_id="c", bundle_sha256="0" * 64,
                             bundle_bytes=1, status="failed", progress=0.0, n_frames=5,
                             attempts=1, error="no turn"))
     log = tmp_path / "api.log"
-    log.write_text("".join("2026-11-25 INFO app.service.jobs: journey j-twice: failed at "
+    log.write_text("".join("2026-11-25 INFO app.service.jobs.run: journey j-twice: failed at "
                            "calibrate: no turn\n" for _ in range(2)))
     service = Service("sqlite", "http://127.0.0.1:1", stack.settings, "f", "r", [log])
     jobs = account(service, Counter({"j-twice": 1, "j-lost": 1}), {"sha": {"a", "b"}})

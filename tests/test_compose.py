@@ -98,13 +98,13 @@ def test_workers_share_no_volume_with_the_api(compose):
 
 
 def test_healthchecks_probe_what_the_code_provides(compose):
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
     from app.settings import Settings
     from worker.tasks import ALIVE_FILE
 
     api_check = " ".join(compose["services"]["api"]["healthcheck"]["test"])
     path = re.search(r"http://127\.0\.0\.1:8000(/[\w/]+)", api_check).group(1)
-    assert path in create_app(Settings(embedded_worker=False)).openapi()["paths"]
+    assert path in create_service_app(Settings(embedded_worker=False)).openapi()["paths"]
     assert "--port 8000" in " ".join(compose["services"]["api"]["command"])
     worker_check = " ".join(compose["services"]["worker"]["healthcheck"]["test"])
     assert f"'/tmp/{ALIVE_FILE.name}'" in worker_check  # the image's temp dir is /tmp

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from app.service.db import session_scope
-from app.service.models import Journey, utc_now
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, utc_now
 from tests.conftest import REPO, CeleryWorker, Stack, make_settings, sqlite_stack
 
 # Spawns the COLMAP pool exactly as run_sfm does, busies its processes and prints their pids.
@@ -105,7 +105,7 @@ def _journeys_with_work_dirs(stack: Stack) -> tuple[dict[str, Path], dict[str, P
         for name, status, attempts, beat in (("live", "running", 2, now),
                                              ("done", "done", 1, None),
                                              ("stale", "running", 1, now - timedelta(hours=1))):
-            session.add(Journey(id=ids[name], camera_id="c", bundle_sha256="0" * 64,
+            session.add(JourneyRow(id=ids[name], camera_id="c", bundle_sha256="0" * 64,
                                 bundle_bytes=1, status=status, progress=0.0, n_frames=3,
                                 attempts=attempts, heartbeat_at=beat))
     work = stack.settings.data_dir / "work"

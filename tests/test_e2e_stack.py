@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from sqlalchemy import func, select
 
-from app.service.db import session_scope
-from app.service.models import Journey, JourneySign
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, JourneySignRow
 from tests.conftest import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
 from tests.map_support import map_sign_errors_m
 from tests.service_support import sign_errors_m, signs_enu, truth_bbox
@@ -108,7 +108,7 @@ def test_a_killed_workers_journey_is_finished_by_the_next_worker(real_stack, uni
             time.sleep(0.2)
         assert _live_members(worker_a.proc.pid) == [], "COLMAP children outlived their worker"
         with session_scope(real_stack.url) as session:
-            row = session.get(Journey, journey_id)
+            row = session.get(JourneyRow, journey_id)
             assert (row.status, row.attempts) == ("running", 1)
 
         worker_b = CeleryWorker(real_stack.settings, tmp_path / "worker-b.log")
@@ -123,8 +123,8 @@ def test_a_killed_workers_journey_is_finished_by_the_next_worker(real_stack, uni
     work = real_stack.settings.data_dir / "work"
     assert not work.exists() or list(work.iterdir()) == [], "the killed run's work dir is swept"
     with session_scope(real_stack.url) as session:
-        n_rows = session.scalar(select(func.count()).select_from(JourneySign)
-                                .where(JourneySign.journey_id == journey_id))
+        n_rows = session.scalar(select(func.count()).select_from(JourneySignRow)
+                                .where(JourneySignRow.journey_id == journey_id))
     assert n_rows == body["n_signs"] == len(features) == len({f["id"] for f in features})
     # The same signs as the uninterrupted run of the same bytes.
     assert sorted(f["properties"]["track_id"] for f in features) == \

@@ -50,8 +50,8 @@ import pytest
 
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
-from app.service.db import session_scope
-from app.service.models import CalibrationRecord, Journey
+from app.service.db.session import session_scope
+from app.service.db.models import CalibrationRow, JourneyRow
 from app.synth.journey import SynthConfig
 from bench.fusion import fusion_journeys
 from bench.metrics import truth_frame
@@ -109,12 +109,12 @@ def seed_calibration(url: str, camera_id: str, camera: CameraModel) -> None:
     """A stored self-calibration of ``camera_id``, as a finished earlier journey leaves it."""
     journey_id = str(uuid.uuid4())
     with session_scope(url) as session:
-        session.add(Journey(id=journey_id, owner_key_id=None, camera_id=camera_id,
+        session.add(JourneyRow(id=journey_id, owner_key_id=None, camera_id=camera_id,
                             bundle_sha256=uuid.uuid4().hex * 2, bundle_bytes=0, status="done",
                             stage="done", progress=1.0, n_frames=0, n_signs=0, attempts=1,
                             calibration=camera.params(), calibration_source="self"))
         session.flush()
-        session.add(CalibrationRecord(camera_id=camera_id, journey_id=journey_id,
+        session.add(CalibrationRow(camera_id=camera_id, journey_id=journey_id,
                                       width=camera.width, height=camera.height, **camera.params(),
                                       n_images=30, n_registered=30, reprojection_error_px=None,
                                       rotation_deg=90.0))

@@ -12,10 +12,10 @@ from sqlalchemy import text
 from sqlalchemy.dialects import postgresql
 
 from app.pipeline.bundle import read_bundle
-from app.service.db import session_scope
-from app.service.map_read import page_query
-from app.service.models import utc_now
-from app.service.queries import BBox
+from app.service.db.session import session_scope
+from app.service.db.map_read import page_query
+from app.service.db.models import utc_now
+from app.service.db.queries import BBox
 from tests import map_support as ms
 from tests.conftest import ADMIN_KEY, auth
 from tests.service_support import bf_zip

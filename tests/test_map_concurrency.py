@@ -11,8 +11,8 @@ import pytest
 from sqlalchemy import func, select
 
 from app.pipeline.bundle import read_bundle
-from app.service.db import session_scope
-from app.service.models import MapSign, MapSignMember
+from app.service.db.session import session_scope
+from app.service.db.models import MapSignRow, MapSignMemberRow
 from tests import map_support as ms
 from tests.conftest import CeleryWorker, Stack, make_settings
 from tests.service_support import bf_zip
@@ -57,11 +57,11 @@ def test_two_workers_fusing_one_place_at_once_make_one_map_sign_per_real_sign(
             worker.stop()
     logs = [w.log_path.read_text() for w in workers]
     assert all("Traceback" not in log for log in logs), logs
-    box = ms.fusion_job.Region.around([world.lat0], [world.lon0], 1000.0)
+    box = ms.fusion.Region.around([world.lat0], [world.lon0], 1000.0)
     with session_scope(stack.url) as session:
-        rows = session.scalars(select(MapSign).where(
-            MapSign.removed_at.is_(None), box.contains(MapSign.lat_deg, MapSign.lon_deg))).all()
-        n_members = session.scalar(select(func.count()).select_from(MapSignMember).where(
-            MapSignMember.map_sign_id.in_([r.id for r in rows])))
+        rows = session.scalars(select(MapSignRow).where(
+            MapSignRow.removed_at.is_(None), box.contains(MapSignRow.lat_deg, MapSignRow.lon_deg))).all()
+        n_members = session.scalar(select(func.count()).select_from(MapSignMemberRow).where(
+            MapSignMemberRow.map_sign_id.in_([r.id for r in rows])))
     assert len(rows) == 6 and all(r.n_journeys == 4 for r in rows)
     assert n_members == 24

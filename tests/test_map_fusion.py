@@ -11,9 +11,9 @@ import pytest
 from sqlalchemy import select
 
 from app.pipeline.bundle import read_bundle
-from app.service import fusion_job
-from app.service.db import session_scope
-from app.service.models import Journey, MapSign, MapSignMember
+from app.service.jobs import fusion
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, MapSignRow, MapSignMemberRow
 from tests import map_support as ms
 from tests.service_support import bf_zip
 
@@ -28,13 +28,13 @@ def journey_data(tmp_path_factory):
 def live_map(stack, world: ms.World) -> list[tuple]:
     """(id, class, lat, lon, alt, n_journeys, n_observations, state, members) of the live map signs
     near ``world``."""
-    box = fusion_job.Region.around([world.lat0], [world.lon0], 1000.0)
+    box = fusion.Region.around([world.lat0], [world.lon0], 1000.0)
     with session_scope(stack.url) as session:
-        rows = session.scalars(select(MapSign).where(
-            MapSign.removed_at.is_(None), box.contains(MapSign.lat_deg, MapSign.lon_deg))
-            .order_by(MapSign.id)).all()
-        members = {r.id: sorted(session.scalars(select(MapSignMember.journey_sign_id).where(
-            MapSignMember.map_sign_id == r.id))) for r in rows}
+        rows = session.scalars(select(MapSignRow).where(
+            MapSignRow.removed_at.is_(None), box.contains(MapSignRow.lat_deg, MapSignRow.lon_deg))
+            .order_by(MapSignRow.id)).all()
+        members = {r.id: sorted(session.scalars(select(MapSignMemberRow.journey_sign_id).where(
+            MapSignMemberRow.map_sign_id == r.id))) for r in rows}
     return [(r.id, r.cls, r.lat_deg, r.lon_deg, r.alt_m, r.n_journeys, r.n_observations, r.state,
              members[r.id]) for r in rows]
 
@@ -58,7 +58,7 @@ def test_any_order_gives_the_same_map_one_sign_per_real_sign_and_better_than_one
             ms.insert_done_journey(stack.settings, journey_data, ids[n], n, results[n])
         maps.append(live_map(stack, world))
         for n in order:
-            assert fusion_job.delete_journey(stack.url, ids[n], stack.settings)
+            assert fusion.delete_journey(stack.url, ids[n], stack.settings)
         assert live_map(stack, world) == []
     assert maps[0] == maps[1]
     fused = maps[0]
@@ -114,10 +114,10 @@ def test_deleting_a_journey_refuses_its_region(stack, journey_data):
                            ms.journey_result(world, rng, only=("0",)))
     assert [s[5] for s in live_map(stack, world)] == [2 if true_track(world, s) == "0" else 1
                                                       for s in live_map(stack, world)]
-    assert fusion_job.delete_journey(stack.url, f"j-{tag}-0", stack.settings)
+    assert fusion.delete_journey(stack.url, f"j-{tag}-0", stack.settings)
     remaining = live_map(stack, world)
     assert len(remaining) == 1 and remaining[0][8] == [f"j-{tag}-1:0"]
-    assert not fusion_job.delete_journey(stack.url, f"j-{tag}-0", stack.settings)
+    assert not fusion.delete_journey(stack.url, f"j-{tag}-0", stack.settings)
 
 
 @pytest.mark.parametrize("fx_factor, flagged", [(1.05, True), (1.01, False)])
@@ -129,7 +129,7 @@ def test_a_self_calibration_far_from_the_stored_one_is_flagged(stack, journey_da
     ms.insert_done_journey(stack.settings, journey_data, journey_id, 0,
                            ms.journey_result(world, np.random.default_rng(1)), known_camera=stored)
     with session_scope(stack.url) as session:
-        flag = session.get(Journey, journey_id).calibration_flag
+        flag = session.get(JourneyRow, journey_id).calibration_flag
     if flagged:
         assert flag["reason"] == "self-calibration differs from the stored one in fx"
         assert flag["relative_deviation"]["fx"] == pytest.approx(0.05 / 1.05, abs=1e-5)
@@ -145,7 +145,7 @@ def test_a_journey_being_rerun_drops_out_of_the_map_until_it_is_done(stack, jour
         ms.insert_done_journey(stack.settings, journey_data, f"j-{tag}-{day}", day,
                                ms.journey_result(world, rng))
     with session_scope(stack.url) as session:  # claimed again by a re-run: its signs stay stored
-        session.get(Journey, f"j-{tag}-0").status = "running"
+        session.get(JourneyRow, f"j-{tag}-0").status = "running"
     ms.insert_done_journey(stack.settings, journey_data, f"j-{tag}-2", 2,
                            ms.journey_result(world, rng))
     fused = live_map(stack, world)

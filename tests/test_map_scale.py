@@ -14,10 +14,10 @@ import httpx
 import pytest
 from sqlalchemy import create_engine, select, text
 
-from app.service.db import session_scope
-from app.service.map_tiles import EXTENT, MEDIA_TYPE, Tile, decode
-from app.service.models import MapSign
-from app.service.queries import BBox
+from app.service.db.session import session_scope
+from app.service.db.map_tiles import EXTENT, MEDIA_TYPE, Tile, decode
+from app.service.db.models import MapSignRow
+from app.service.db.queries import BBox
 from bench.map_data import ensure_loaded
 from tests.conftest import ADMIN_KEY, PG_URL, auth, make_settings, sqlite_stack
 
@@ -27,7 +27,7 @@ T0 = datetime(2026, 11, 1, 8, 0, tzinfo=timezone.utc)
 def add_sign(url: str, sign_id: str, cls: str, lat: float, lon: float, state: str = "confirmed",
              removed: bool = False) -> None:
     with session_scope(url) as session:
-        session.add(MapSign(id=sign_id, cls=cls, lat_deg=lat, lon_deg=lon, alt_m=110.0,
+        session.add(MapSignRow(id=sign_id, cls=cls, lat_deg=lat, lon_deg=lon, alt_m=110.0,
                             cov_enu=[[0.25, 0, 0], [0, 0.25, 0], [0, 0, 1.0]], std_m=0.5,
                             n_journeys=2, n_observations=2, first_seen_at=T0, last_seen_at=T0,
                             state=state, evidence={}, removed_at=T0 if removed else None))
@@ -175,9 +175,9 @@ def test_following_next_returns_every_sign_in_the_box_exactly_once(bench_url, tm
     for i in range(5):
         add_sign(bench_url, f"ms-tie-{i}", "stop", lat, lon)
     with session_scope(bench_url) as session:
-        expected = set(session.scalars(select(MapSign.id).where(
-            MapSign.removed_at.is_(None), MapSign.lat_deg.between(box.min_lat, box.max_lat),
-            MapSign.lon_deg.between(box.min_lon, box.max_lon))))
+        expected = set(session.scalars(select(MapSignRow.id).where(
+            MapSignRow.removed_at.is_(None), MapSignRow.lat_deg.between(box.min_lat, box.max_lat),
+            MapSignRow.lon_deg.between(box.min_lon, box.max_lon))))
     assert len(expected) > 60
     settings = make_settings(tmp_path / "d", database_url=bench_url)
     from tests.conftest import Stack
@@ -209,9 +209,9 @@ def test_health_answers_while_map_reads_queue(tmp_path):
     stack = sqlite_stack(tmp_path / "data", map_read_concurrency=1)
     m, _ = ensure_loaded(stack.url, 20_000, log=lambda *_: None)
     bbox = ",".join(map(str, m.city_bbox(0)))
-    from app.service.app import create_app
+    from app.commands.service import create_service_app
 
-    app = create_app(stack.settings)
+    app = create_service_app(stack.settings)
     done: list[str] = []
 
     async def run() -> None:

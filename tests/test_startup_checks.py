@@ -19,8 +19,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.exc import OperationalError
 
-from app.service.app import create_app
-from app.service.db import upgrade
+from app.commands.service import create_service_app
+from app.service.db.session import upgrade
 from app.service.startup import StartupError
 from tests.conftest import REPO, _pg_database, make_settings, settings_env
 
@@ -109,7 +109,7 @@ def test_an_unmigrated_database_is_refused_at_start(tmp_path):
     settings = make_settings(tmp_path / "data")
     with pytest.raises(StartupError, match=r"database sqlite:///.*signmap.db is at schema revision "
                                             r"none, this version needs \w+: run `signmap db upgrade`"):
-        with TestClient(create_app(settings)):
+        with TestClient(create_service_app(settings)):
             pass
 
 
@@ -117,7 +117,7 @@ def test_an_unmigrated_database_is_refused_at_start(tmp_path):
 def test_health_answers_503_json_when_the_database_goes_away(tmp_path, pg_url):
     with _pg_database(f"signmap_test_gone_{secrets.token_hex(3)}") as url:
         settings = make_settings(tmp_path / "data", database_url=url)
-        client = TestClient(create_app(settings), raise_server_exceptions=False)
+        client = TestClient(create_service_app(settings), raise_server_exceptions=False)
         with client:
             assert client.get("/api/v1/health").json() == {"status": "ok"}
             from sqlalchemy import create_engine, text
@@ -139,7 +139,7 @@ def test_health_answers_503_json_when_the_database_goes_away(tmp_path, pg_url):
 def test_an_unhandled_error_answers_json_500_and_is_logged(tmp_path, caplog):
     settings = make_settings(tmp_path / "data")
     upgrade(settings.effective_database_url)
-    app = create_app(settings)
+    app = create_service_app(settings)
 
     @app.get("/api/v1/boom")
     def boom():

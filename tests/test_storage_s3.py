@@ -17,9 +17,9 @@ from sqlalchemy import update
 
 from app.service import storage
 from app.service.admin import media
-from app.service.db import session_scope
-from app.service.jobs import run_journey
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.jobs.run import run_journey
+from app.service.db.models import JourneyRow
 from app.settings import Settings
 from tests import bundle_factory as bf
 from tests.conftest import ADMIN_KEY, Stack, auth, s3_objects, upload
@@ -140,10 +140,10 @@ def test_a_job_fetches_the_bundle_into_its_own_scratch(s3_stack, tmp_path):
     worker = s3_stack.settings.model_copy(update={"data_dir": tmp_path / "worker"})
     run_journey(journey_id, worker)
     with session_scope(s3_stack.url) as session:
-        row = session.get(Journey, journey_id)
+        row = session.get(JourneyRow, journey_id)
         # Past extract: the bundle was fetched and read; the pipeline refuses a straight road.
         assert (row.status, row.stage) == ("failed", "calibrate"), row.error
-        session.execute(update(Journey).where(Journey.id == journey_id)
+        session.execute(update(JourneyRow).where(JourneyRow.id == journey_id)
                         .values(status="queued", attempts=0))
         sha = row.bundle_sha256
     assert _local_files(tmp_path / "worker") == []  # its scratch went with the run
@@ -151,7 +151,7 @@ def test_a_job_fetches_the_bundle_into_its_own_scratch(s3_stack, tmp_path):
     storage.make_store(worker).delete(sha)
     run_journey(journey_id, worker)
     with session_scope(s3_stack.url) as session:
-        row = session.get(Journey, journey_id)
+        row = session.get(JourneyRow, journey_id)
     assert (row.status, row.stage) == ("failed", "extract")
     where = f"{s3_stack.settings.storage_url}/{sha}.zip"
     assert row.error == (f"the stored bundle {where} is missing from the object store")

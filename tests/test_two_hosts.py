@@ -19,8 +19,8 @@ import pytest
 from sqlalchemy import func, select
 
 from app.pipeline.types import CameraModel
-from app.service.db import session_scope
-from app.service.models import JourneySign
+from app.service.db.session import session_scope
+from app.service.db.models import JourneySignRow
 from tests.conftest import (SESSION_TAG, CeleryWorker, Stack, auth, make_settings, s3_objects,
                             upload)
 from tests.test_fusion_rendered import seed_calibration
@@ -94,10 +94,10 @@ def test_a_killed_hosts_job_is_finished_by_the_other_host(own_pg_url, redis_url,
     assert "its worker stopped beating; sent again" in survivor.log_path.read_text()
     with session_scope(api.url) as session:
         for journey_id in ids:
-            rows = session.scalars(select(JourneySign.id)
-                                   .where(JourneySign.journey_id == journey_id)).all()
+            rows = session.scalars(select(JourneySignRow.id)
+                                   .where(JourneySignRow.journey_id == journey_id)).all()
             assert len(rows) == len(set(rows)) == by_id[journey_id]["n_signs"] >= 1
-        assert session.scalar(select(func.count()).select_from(JourneySign)) == \
+        assert session.scalar(select(func.count()).select_from(JourneySignRow)) == \
             sum(b["n_signs"] for b in bodies)  # stored once each: no duplicate of the rerun
 
     # What each host keeps: the store has the one bundle; the API host nothing; the surviving

@@ -8,9 +8,9 @@ from datetime import timedelta
 
 from sqlalchemy import update
 
-from app.service import jobstate
-from app.service.db import session_scope
-from app.service.models import Journey, utc_now
+from app.service.jobs import state
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow, utc_now
 from tests import bundle_factory as bf
 from tests.conftest import auth, poll_journey, sqlite_stack, upload
 from tests.service_support import bf_zip
@@ -30,8 +30,8 @@ def test_queued_and_stale_journeys_are_run_when_the_api_starts(tmp_path):
         stale = upload(client, key, bf_zip(bf.valid_files(n_frames=6)))
     # `stale` was being run by a process that died a while ago.
     with session_scope(held.url) as session:
-        assert jobstate.claim(session, stale, 60, 3) == 1
-        session.execute(update(Journey).where(Journey.id == stale).values(
+        assert state.claim(session, stale, 60, 3) == 1
+        session.execute(update(JourneyRow).where(JourneyRow.id == stale).values(
             heartbeat_at=utc_now() - timedelta(seconds=held.settings.stale_after_s + 1)))
 
     embedded = held.settings.model_copy(update={"embedded_worker": True})

@@ -8,10 +8,11 @@ from datetime import timedelta
 
 from sqlalchemy import func, select, update
 
-from app.service import jobstate, storage
-from app.service.db import session_scope
-from app.service.jobs import run_journey
-from app.service.models import CalibrationRecord, Journey, JourneySign, utc_now
+from app.service import storage
+from app.service.jobs import state
+from app.service.db.session import session_scope
+from app.service.jobs.run import run_journey
+from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow, utc_now
 from tests import bundle_factory as bf
 from tests.conftest import upload
 from tests.service_support import bf_zip, finish, made_result
@@ -22,23 +23,23 @@ SIGNS = [("0", "stop", 49.0112, 8.4185, 114.0), ("1", "yield", 49.0113, 8.4185, 
 def _rows(stack, journey_id: str):
     with session_scope(stack.url) as session:
         signs = session.execute(
-            select(JourneySign.id, JourneySign.cls, JourneySign.lat_deg, JourneySign.lon_deg,
-                   JourneySign.alt_m, JourneySign.observations)
-            .where(JourneySign.journey_id == journey_id).order_by(JourneySign.id)).all()
+            select(JourneySignRow.id, JourneySignRow.cls, JourneySignRow.lat_deg, JourneySignRow.lon_deg,
+                   JourneySignRow.alt_m, JourneySignRow.observations)
+            .where(JourneySignRow.journey_id == journey_id).order_by(JourneySignRow.id)).all()
         calibrations = session.execute(
-            select(CalibrationRecord.camera_id, CalibrationRecord.fx)
-            .where(CalibrationRecord.journey_id == journey_id)).all()
+            select(CalibrationRow.camera_id, CalibrationRow.fx)
+            .where(CalibrationRow.journey_id == journey_id)).all()
     return [tuple(r) for r in signs], [tuple(r) for r in calibrations]
 
 
-def _journey(stack, journey_id: str) -> Journey:
+def _journey(stack, journey_id: str) -> JourneyRow:
     with session_scope(stack.url) as session:
-        return session.get(Journey, journey_id)
+        return session.get(JourneyRow, journey_id)
 
 
 def _age_heartbeat(stack, journey_id: str, seconds: float) -> None:
     with session_scope(stack.url) as session:
-        session.execute(update(Journey).where(Journey.id == journey_id)
+        session.execute(update(JourneyRow).where(JourneyRow.id == journey_id)
                         .values(heartbeat_at=utc_now() - timedelta(seconds=seconds)))
 
 
@@ -50,7 +51,7 @@ def test_storing_a_result_twice_gives_the_same_rows(stack):
     first = _rows(stack, journey_id)
     # Put it back as recovery would, and store the same result again.
     with session_scope(stack.url) as session:
-        session.execute(update(Journey).where(Journey.id == journey_id).values(status="queued"))
+        session.execute(update(JourneyRow).where(JourneyRow.id == journey_id).values(status="queued"))
     assert finish(stack, journey_id, made_result(SIGNS)) == 2
     assert _rows(stack, journey_id) == first
     assert [r[0] for r in first[0]] == [f"{journey_id}:0", f"{journey_id}:1"]
@@ -63,29 +64,29 @@ def test_claim_heartbeat_and_takeover(stack):
     with stack.client() as client:
         journey_id = upload(client, key, bf_zip())
     with session_scope(stack.url) as session:
-        assert jobstate.claim(session, journey_id, 60, 3) == 1
+        assert state.claim(session, journey_id, 60, 3) == 1
     with session_scope(stack.url) as session:  # a live run is not claimed twice
-        assert jobstate.claim(session, journey_id, 60, 3) is None
-        assert jobstate.beat(session, journey_id, 1, "calibrate", 0.4)
+        assert state.claim(session, journey_id, 60, 3) is None
+        assert state.beat(session, journey_id, 1, "calibrate", 0.4)
     row = _journey(stack, journey_id)
     assert (row.status, row.stage, row.progress, row.attempts) == ("running", "calibrate", 0.4, 1)
 
     _age_heartbeat(stack, journey_id, 61)
     with session_scope(stack.url) as session:
-        assert journey_id in jobstate.requeue_stale(session, 60, 3)
+        assert journey_id in state.requeue_stale(session, 60, 3)
     with session_scope(stack.url) as session:
-        assert jobstate.claim(session, journey_id, 60, 3) == 2
+        assert state.claim(session, journey_id, 60, 3) == 2
     # The first run wakes up: it may neither beat, nor fail, nor store over the second.
     with session_scope(stack.url) as session:
-        assert not jobstate.beat(session, journey_id, 1, "triangulate", 0.9)
-        assert not jobstate.fail(session, journey_id, 1, "x", "late")
+        assert not state.beat(session, journey_id, 1, "triangulate", 0.9)
+        assert not state.fail(session, journey_id, 1, "x", "late")
     from app.pipeline.bundle import read_bundle
 
     bundle = stack.settings.data_dir / "b.zip"
     bundle.write_bytes(bf_zip())
     journey = read_bundle(bundle, stack.settings.data_dir / "x", decode_images=False)
     with session_scope(stack.url) as session:
-        assert not jobstate.store_result(session, journey_id, 1, journey, made_result(SIGNS), {})
+        assert not state.store_result(session, journey_id, 1, journey, made_result(SIGNS), {})
     assert _rows(stack, journey_id) == ([], [])
     row = _journey(stack, journey_id)
     assert (row.status, row.attempts, row.stage) == ("running", 2, "start")
@@ -97,10 +98,10 @@ def test_a_journey_whose_worker_keeps_dying_fails_after_max_attempts(stack):
         journey_id = upload(client, key, bf_zip())
     for attempt in (1, 2):
         with session_scope(stack.url) as session:
-            assert jobstate.claim(session, journey_id, 60, 2) == attempt
+            assert state.claim(session, journey_id, 60, 2) == attempt
         _age_heartbeat(stack, journey_id, 61)
     with session_scope(stack.url) as session:  # a redelivered message finds nothing to claim
-        assert jobstate.claim(session, journey_id, 60, 2) is None
+        assert state.claim(session, journey_id, 60, 2) is None
     row = _journey(stack, journey_id)
     assert (row.status, row.error) == (
         "failed", "gave up after 2 attempts: the worker died or stalled each time")
@@ -117,11 +118,11 @@ def test_latest_calibration_of_the_camera_excluding_the_journey_itself(stack):
     finish(stack, ids[1], made_result(SIGNS, fx=70.0), files[1])
     finish(stack, ids[2], made_result(SIGNS, source="supplied", fx=70.0), files[2])
     with session_scope(stack.url) as session:
-        assert jobstate.latest_calibration(session, camera_id, ids[2]).fx == 70.0
-        assert jobstate.latest_calibration(session, camera_id, ids[1]).fx == 60.0
-        assert jobstate.latest_calibration(session, "other-camera", ids[2]) is None
-        n_records = session.scalar(select(func.count()).select_from(CalibrationRecord)
-                                   .where(CalibrationRecord.camera_id == camera_id))
+        assert state.latest_calibration(session, camera_id, ids[2]).fx == 70.0
+        assert state.latest_calibration(session, camera_id, ids[1]).fx == 60.0
+        assert state.latest_calibration(session, "other-camera", ids[2]) is None
+        n_records = session.scalar(select(func.count()).select_from(CalibrationRow)
+                                   .where(CalibrationRow.camera_id == camera_id))
     assert n_records == 2  # "supplied" calibrations are not stored again
 
 

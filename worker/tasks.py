@@ -14,9 +14,9 @@ from pathlib import Path
 
 from celery.signals import worker_ready, worker_shutdown
 
-from app.service import fusion_job, jobstate, sweep
-from app.service.db import session_scope
-from app.service.jobs import run_journey
+from app.service.jobs import fusion, state, sweep
+from app.service.db.session import session_scope
+from app.service.jobs.run import run_journey
 from worker.celery_app import FUSE_JOURNEY, RUN_JOURNEY, app, settings
 
 log = logging.getLogger(__name__)
@@ -33,13 +33,13 @@ def run_journey_task(journey_id: str) -> None:
 @app.task(name=FUSE_JOURNEY, acks_late=True, reject_on_worker_lost=True)
 def fuse_journey_task(journey_id: str) -> None:
     """Re-fuse the map around a stored journey (repairs a fusion that failed after the store)."""
-    fusion_job.refuse_around(settings.effective_database_url, journey_id, settings)
+    fusion.refuse_around(settings.effective_database_url, journey_id, settings)
 
 
 def sweep_once() -> list[str]:
     # Sent before the commit: if the broker is down, the journeys stay stale for the next sweep.
     with session_scope(settings.effective_database_url) as session:
-        ids = jobstate.requeue_stale(session, settings.stale_after_s, settings.max_attempts)
+        ids = state.requeue_stale(session, settings.stale_after_s, settings.max_attempts)
         for journey_id in ids:
             app.send_task(RUN_JOURNEY, args=[journey_id], queue=settings.celery_queue)
             log.warning("journey %s: its worker stopped beating; sent again", journey_id)

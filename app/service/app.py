@@ -1,4 +1,6 @@
-"""The FastAPI application: ``create_app(settings)``; ``uvicorn --factory app.service.app:create_app``."""
+"""The FastAPI application: ``create_app(settings, queue)``. With a broker configured the caller
+passes the queue (``app.commands.service.create_service_app`` passes Celery's; it is also the factory
+for ``uvicorn --factory app.commands.service:create_service_app``)."""
 
 from __future__ import annotations
 
@@ -12,13 +14,13 @@ from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
 from app.service import startup
 from app.service.admin import mount_admin
-from app.service.api import router
-from app.service.map_api import router as map_router
-from app.service.db import session_scope
-from app.service.queue import make_queue
-from app.service.schemas import ErrorOut
+from app.service.api.routes import journeys, tiles
+from app.service.api.routes import map as map_routes
+from app.service.db.session import session_scope
+from app.service.jobs.queue import JobQueue, local_queue
+from app.service.api.schemas import ErrorOut
 from app.service.storage import make_store
-from app.service.sweep import Sweeper
+from app.service.jobs.sweep import Sweeper
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -35,10 +37,17 @@ Every call takes `Authorization: Bearer <key>`; errors are JSON `{"detail": ...}
 """
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """The API for ``settings`` (default: from the environment). It refuses to start
-    (``startup.StartupError``) unless the database is reachable and migrated and data_dir writable."""
+def create_app(settings: Settings | None = None, queue: JobQueue | None = None) -> FastAPI:
+    """The API for ``settings`` (default: from the environment), handing journeys to ``queue``
+    (default, only without a broker: the embedded worker, or none with ``embedded_worker`` off).
+    It refuses to start (``startup.StartupError``) unless the database is reachable and migrated and
+    data_dir writable."""
     settings = settings or Settings()
+    if queue is None:
+        if settings.broker_url:
+            raise ValueError("a broker is configured: pass its queue (app.commands.service."
+                             "create_service_app builds the app with Celery's)")
+        queue = local_queue(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -56,10 +65,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(title="Signmap", version="1", description=DESCRIPTION, lifespan=lifespan)
     app.state.settings = settings
-    app.state.queue = make_queue(settings)
+    app.state.queue = queue
     app.state.store = make_store(settings)
-    app.include_router(router)
-    app.include_router(map_router)
+    for routes in (journeys, map_routes, tiles):
+        app.include_router(routes.router)
     mount_admin(app)
     app.add_middleware(_JsonErrors)
 

@@ -12,7 +12,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import create_engine, pool
 from sqlalchemy.engine import make_url
 
-from app.service.db import REPO_ROOT
+from app.service.db.session import REPO_ROOT
 from app.settings import Settings
 
 

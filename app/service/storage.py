@@ -185,12 +185,12 @@ def release_bundle(url: str, store: BundleStore, sha256: str) -> None:
     shared by owners). A store that fails is logged: the journey is gone either way."""
     from sqlalchemy import func, select
 
-    from app.service.db import session_scope
-    from app.service.models import Journey
+    from app.service.db.session import session_scope
+    from app.service.db.models import JourneyRow
 
     with session_scope(url) as session:
-        others = session.scalar(select(func.count()).select_from(Journey)
-                                .where(Journey.bundle_sha256 == sha256))
+        others = session.scalar(select(func.count()).select_from(JourneyRow)
+                                .where(JourneyRow.bundle_sha256 == sha256))
     if others:
         return
     try:

@@ -23,7 +23,7 @@ branch_labels: Union[str, Sequence[str], None] = None
 depends_on: Union[str, Sequence[str], None] = None
 
 LIVE = sa.text("removed_at IS NULL")
-# The rest of what a GET /signs page and a tile read (app/service/map_read.py PAGE_COLUMNS).
+# The rest of what a GET /signs page and a tile read (app/service/db/map_read.py PAGE_COLUMNS).
 PAGE = ["class", "state", "alt_m", "std_m", "n_journeys", "n_observations", "first_seen_at",
         "last_seen_at", "facing_deg"]
 

@@ -6,15 +6,16 @@ import hashlib
 import uuid
 from pathlib import Path
 
-from app.service import jobstate, storage
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service import storage
+from app.service.jobs import state
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from app.settings import Settings
 from tests import bundle_factory as bf
 from tests.service_support import made_result
 
 try:
-    from app.service.fusion_job import store_and_fuse as _store_and_fuse
+    from app.service.jobs.fusion import store_and_fuse as _store_and_fuse
 except ImportError:  # before map fusion: the map is the union of the journeys' signs
     _store_and_fuse = None
 
@@ -35,13 +36,13 @@ def add_journey(settings: Settings, status: str = "queued", camera_id: str = "te
     journey_id = str(uuid.uuid4())
     url = settings.effective_database_url
     with session_scope(url) as session:
-        session.add(Journey(id=journey_id, camera_id=camera_id, bundle_sha256=sha,
+        session.add(JourneyRow(id=journey_id, camera_id=camera_id, bundle_sha256=sha,
                             bundle_bytes=len(data), status="queued", progress=0.0, n_frames=5,
                             attempts=0))
     if status == "queued":
         return journey_id
     with session_scope(url) as session:
-        attempt = jobstate.claim(session, journey_id, 60, 3)
+        attempt = state.claim(session, journey_id, 60, 3)
     if status == "done":
         from app.pipeline.bundle import read_bundle
 
@@ -54,19 +55,19 @@ def add_journey(settings: Settings, status: str = "queued", camera_id: str = "te
                                    settings)
         else:
             with session_scope(url) as session:
-                assert jobstate.store_result(session, journey_id, attempt, journey, result,
+                assert state.store_result(session, journey_id, attempt, journey, result,
                                              timings_s)
     elif status == "failed":
         with session_scope(url) as session:
-            jobstate.fail(session, journey_id, attempt, stage or "calibrate",
+            state.fail(session, journey_id, attempt, stage or "calibrate",
                           error or "no turn found")
     elif status == "running":
         with session_scope(url) as session:
-            jobstate.beat(session, journey_id, attempt, stage or "ego-motion", progress)
+            state.beat(session, journey_id, attempt, stage or "ego-motion", progress)
     return journey_id
 
 
 def set_progress(settings: Settings, journey_id: str, progress: float, stage: str) -> None:
     with session_scope(settings.effective_database_url) as session:
-        row = session.get(Journey, journey_id)
+        row = session.get(JourneyRow, journey_id)
         row.progress, row.stage = progress, stage

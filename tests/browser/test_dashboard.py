@@ -14,8 +14,8 @@ import httpx
 import pytest
 
 from app.service.auth import create_key
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from bench.serve import serve
 from tests.browser.seed import add_journey, set_progress
 from tests.conftest import ADMIN_KEY, REPO, auth, make_settings, settings_env
@@ -102,7 +102,7 @@ def test_operator_session(browser, server):
     page.wait_for_load_state()
     assert page.locator(f'tr[data-id="{failed}"] .status').inner_text() == "queued"
     with session_scope(settings.effective_database_url) as session:
-        assert session.get(Journey, failed).status == "queued"
+        assert session.get(JourneyRow, failed).status == "queued"
 
     # The journey page: GPS track and both signs on its map, crops of every observation.
     page.goto(f"{base}/admin/journeys/{done}")

@@ -5,15 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.service.models import CalibrationRecord, Journey, JourneySign
+from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow
 
 PAGE_SIZE = 50
-LIST_COLUMNS = (Journey.id, Journey.camera_id, Journey.status, Journey.stage, Journey.progress,
-                Journey.n_frames, Journey.n_signs, Journey.error, Journey.created_at,
-                Journey.started_at, Journey.finished_at, Journey.attempts)
+LIST_COLUMNS = (JourneyRow.id, JourneyRow.camera_id, JourneyRow.status, JourneyRow.stage, JourneyRow.progress,
+                JourneyRow.n_frames, JourneyRow.n_signs, JourneyRow.error, JourneyRow.created_at,
+                JourneyRow.started_at, JourneyRow.finished_at, JourneyRow.attempts)
 
 
 @dataclass(frozen=True)
@@ -35,60 +35,45 @@ def list_journeys(session: Session, status: str | None, camera_id: str | None, p
     """One page of journeys, newest first, filtered by status and camera (None = any)."""
     where = []
     if status:
-        where.append(Journey.status == status)
+        where.append(JourneyRow.status == status)
     if camera_id:
-        where.append(Journey.camera_id == camera_id)
-    total = session.scalar(select(func.count()).select_from(Journey).where(*where))
+        where.append(JourneyRow.camera_id == camera_id)
+    total = session.scalar(select(func.count()).select_from(JourneyRow).where(*where))
     n_pages = max(1, -(-total // PAGE_SIZE))
     page = min(max(1, page), n_pages)
     query = (select(*LIST_COLUMNS).where(*where)
-             .order_by(Journey.created_at.desc(), Journey.id)
+             .order_by(JourneyRow.created_at.desc(), JourneyRow.id)
              .offset((page - 1) * PAGE_SIZE).limit(PAGE_SIZE))
     rows = [dict(r._mapping, wall_s=_wall_s(r)) for r in session.execute(query)]
-    return JourneyPage(rows, total, page, n_pages)
+    return JourneyPage(rows=rows, total=total, page=page, n_pages=n_pages)
 
 
 def camera_ids(session: Session) -> list[str]:
-    return list(session.scalars(select(Journey.camera_id).distinct().order_by(Journey.camera_id)))
+    return list(session.scalars(select(JourneyRow.camera_id).distinct().order_by(JourneyRow.camera_id)))
 
 
 def progress(session: Session, ids: list[str]) -> dict[str, dict[str, Any]]:
-    rows = session.execute(select(Journey.id, Journey.status, Journey.stage, Journey.progress,
-                                  Journey.error, Journey.n_signs).where(Journey.id.in_(ids)))
+    rows = session.execute(select(JourneyRow.id, JourneyRow.status, JourneyRow.stage, JourneyRow.progress,
+                                  JourneyRow.error, JourneyRow.n_signs).where(JourneyRow.id.in_(ids)))
     return {r.id: {"status": r.status, "stage": r.stage, "progress": r.progress,
                    "error": r.error, "n_signs": r.n_signs} for r in rows}
 
 
-def journey_signs(session: Session, journey_id: str) -> list[JourneySign]:
-    return list(session.scalars(select(JourneySign).where(JourneySign.journey_id == journey_id)
-                                .order_by(JourneySign.id)))
+def journey_signs(session: Session, journey_id: str) -> list[JourneySignRow]:
+    return list(session.scalars(select(JourneySignRow).where(JourneySignRow.journey_id == journey_id)
+                                .order_by(JourneySignRow.id)))
 
 
-def calibrations(session: Session, camera_id: str | None = None) -> list[CalibrationRecord]:
+def calibrations(session: Session, camera_id: str | None = None) -> list[CalibrationRow]:
     """Self-calibrations, per camera, oldest first."""
-    query = select(CalibrationRecord).order_by(CalibrationRecord.camera_id,
-                                               CalibrationRecord.created_at, CalibrationRecord.id)
+    query = select(CalibrationRow).order_by(CalibrationRow.camera_id,
+                                               CalibrationRow.created_at, CalibrationRow.id)
     if camera_id is not None:
-        query = query.where(CalibrationRecord.camera_id == camera_id)
+        query = query.where(CalibrationRow.camera_id == camera_id)
     return list(session.scalars(query))
 
 
-def requeue_failed(session: Session, journey_id: str) -> bool:
-    """Put a failed journey back to queued exactly as a re-upload does; False if it is not failed."""
-    return session.execute(
-        update(Journey).where(Journey.id == journey_id, Journey.status == "failed")
-        .values(status="queued", stage=None, progress=0.0, error=None, attempts=0)
-    ).rowcount == 1
-
-
-def delete_journey(session: Session, journey_id: str) -> bool:
-    """The journey, its signs and its calibration, in the caller's one transaction."""
-    session.execute(delete(JourneySign).where(JourneySign.journey_id == journey_id))
-    session.execute(delete(CalibrationRecord).where(CalibrationRecord.journey_id == journey_id))
-    return session.execute(delete(Journey).where(Journey.id == journey_id)).rowcount == 1
-
-
-def fx_chart(records: list[CalibrationRecord], width: int = 240, height: int = 60
+def fx_chart(records: list[CalibrationRow], width: int = 240, height: int = 60
              ) -> list[tuple[float, float]]:
     """SVG points (x, y) of fx per calibration, oldest first, scaled into ``width`` x ``height``."""
     fxs = [r.fx for r in records]

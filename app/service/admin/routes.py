@@ -1,38 +1,33 @@
-"""Dashboard pages and actions. Every route but the sign-in form needs a signed-in admin session."""
+"""Dashboard pages and actions. Every route but the sign-in form needs a signed-in admin session.
+The map's data routes under /admin/api are the public API's own functions (``api.routes.map`` and
+``tiles``), served here behind the sign-in instead of an API key."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 from typing import Annotated
-from urllib.parse import quote, urlsplit
+from urllib.parse import urlsplit
 
-import httpx
 from fastapi import APIRouter, Depends, Form, HTTPException, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
-from fastapi.routing import APIRoute
 from fastapi.templating import Jinja2Templates
 
 from app.service import storage
 from app.service.admin import data, media
-from app.service.admin.session import (COOKIE, DashboardSession, as_principal, cookie_args,
-                                       current_session, sign_in, sign_out)
-from app.service.db import session_scope
-from app.service.models import STATUSES, Journey, JourneyCoverage, JourneySign
+from app.service.admin.session import (COOKIE, DashboardSession, cookie_args, current_session,
+                                       sign_in, sign_out)
+from app.service.api.routes import journeys as journey_routes
+from app.service.api.routes import map as map_routes
+from app.service.api.routes import tiles as tile_routes
+from app.service.db import crud
+from app.service.db.models import STATUSES, CoverageRow, JourneyRow, JourneySignRow
+from app.service.deps import SessionDep, SettingsDep
 
 log = logging.getLogger(__name__)
 templates = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
 router = APIRouter(prefix="/admin", include_in_schema=False)
 SignedIn = Annotated[DashboardSession, Depends(current_session)]
-DELETE_ROUTE = "/api/v1/journeys/{journey_id}"
-
-
-def _settings(request: Request):
-    return request.app.state.settings
-
-
-def _url(request: Request) -> str:
-    return _settings(request).effective_database_url
 
 
 def _same_origin(request: Request) -> None:
@@ -53,21 +48,22 @@ def login_form(request: Request) -> HTMLResponse:
 
 
 @router.post("/login")
-def login(request: Request, key: Annotated[str, Form()] = "") -> Response:
+def login(request: Request, settings: SettingsDep, session: SessionDep,
+          key: Annotated[str, Form()] = "") -> Response:
     _same_origin(request)
-    cookie = sign_in(_settings(request), key.strip()) if key.strip() else None
+    cookie = sign_in(session, settings, key.strip()) if key.strip() else None
     if cookie is None:
         log.info("dashboard sign-in refused from %s", request.client.host if request.client else "?")
         return _page(request, "login.html", 403, error="not an admin key")
     response = RedirectResponse("/admin/journeys", status_code=303)
-    response.set_cookie(value=cookie, **cookie_args(request, _settings(request)))
+    response.set_cookie(value=cookie, **cookie_args(request, settings))
     return response
 
 
 @router.post("/logout")
-def logout(request: Request, signed_in: SignedIn) -> Response:
+def logout(request: Request, signed_in: SignedIn, session: SessionDep) -> Response:
     _same_origin(request)
-    sign_out(_settings(request), signed_in.token_sha256)
+    sign_out(session, signed_in.token_sha256)
     response = RedirectResponse("/admin/login", status_code=303)
     response.delete_cookie(COOKIE, path="/admin")
     return response
@@ -80,29 +76,28 @@ def home(_signed_in: SignedIn) -> Response:
 
 
 @router.get("/journeys")
-def journeys(request: Request, _signed_in: SignedIn, status: str | None = None,
-             camera: str | None = None, page: Annotated[int, Query(ge=1)] = 1) -> HTMLResponse:
-    with session_scope(_url(request)) as session:
-        listing = data.list_journeys(session, status or None, camera or None, page)
-        cameras = data.camera_ids(session)
+def journeys(request: Request, _signed_in: SignedIn, session: SessionDep,
+             status: str | None = None, camera: str | None = None,
+             page: Annotated[int, Query(ge=1)] = 1) -> HTMLResponse:
+    listing = data.list_journeys(session, status or None, camera or None, page)
+    cameras = data.camera_ids(session)
     return _page(request, "journeys.html", listing=listing, statuses=STATUSES, cameras=cameras,
                  status=status or "", camera=camera or "")
 
 
 @router.get("/journeys/progress.json")
-def journeys_progress(request: Request, _signed_in: SignedIn, ids: str = "") -> dict:
+def journeys_progress(_signed_in: SignedIn, session: SessionDep, ids: str = "") -> dict:
     wanted = [i for i in ids.split(",") if i][:500]
-    with session_scope(_url(request)) as session:
-        return data.progress(session, wanted)
+    return data.progress(session, wanted)
 
 
 @router.post("/journeys/{journey_id}/retry")
-def retry(request: Request, journey_id: str, _signed_in: SignedIn) -> Response:
+def retry(request: Request, journey_id: str, _signed_in: SignedIn, session: SessionDep
+          ) -> Response:
     _same_origin(request)
-    with session_scope(_url(request)) as session:
-        requeued = data.requeue_failed(session, journey_id)
-    if not requeued:
+    if not crud.requeue_failed(session, journey_id):
         raise HTTPException(409, "only a failed journey can be retried")
+    session.commit()  # before it is queued: the job reads the row
     request.app.state.queue.submit(journey_id)
     log.info("journey %s: retried from the dashboard", journey_id)
     back = urlsplit(request.headers.get("referer", ""))
@@ -110,45 +105,33 @@ def retry(request: Request, journey_id: str, _signed_in: SignedIn) -> Response:
     return RedirectResponse(f"{path}?{back.query}" if back.query else path, status_code=303)
 
 
-def _has_delete_route(request: Request) -> bool:
-    return any(isinstance(r, APIRoute) and r.path == DELETE_ROUTE and "DELETE" in r.methods
-               for r in request.app.routes)
-
-
 @router.post("/journeys/{journey_id}/delete")
-async def delete(request: Request, journey_id: str, signed_in: SignedIn) -> Response:
+def delete(request: Request, journey_id: journey_routes.JourneyId, signed_in: SignedIn,
+           settings: SettingsDep) -> Response:
     _same_origin(request)
-    if _has_delete_route(request):  # the service's own deletion (re-fuses the map around it)
-        async with _api_client(request, signed_in) as client:
-            answer = await client.delete(f"/api/v1/journeys/{journey_id}")
-        if answer.status_code >= 400:
-            raise HTTPException(answer.status_code, answer.json().get("detail", answer.text))
-    else:
-        with session_scope(_url(request)) as session:
-            if not data.delete_journey(session, journey_id):
-                raise HTTPException(404, f"journey {journey_id} not found")
+    # The API's own deletion (re-fuses the map around it; 404 or 409 as there), as this admin.
+    journey_routes.delete_journey(request, journey_id, signed_in.principal, settings)
     log.info("journey %s: deleted from the dashboard", journey_id)
     return RedirectResponse("/admin/journeys", status_code=303)
 
 
-def _journey(session, journey_id: str) -> Journey:
-    row = session.get(Journey, journey_id)
+def _journey(session, journey_id: str) -> JourneyRow:
+    row = session.get(JourneyRow, journey_id)
     if row is None:
         raise HTTPException(404, f"journey {journey_id} not found")
     return row
 
 
 @router.get("/journeys/{journey_id}")
-def journey(request: Request, journey_id: str, _signed_in: SignedIn) -> HTMLResponse:
-    settings = _settings(request)
-    with session_scope(_url(request)) as session:
-        row = _journey(session, journey_id)
-        signs = data.journey_signs(session, journey_id)
-        history = data.calibrations(session, row.camera_id)
-        coverage = session.get(JourneyCoverage, journey_id)
-        estimated = [] if coverage is None else media.estimated_track(
-            coverage.poses, coverage.origin_lat_deg, coverage.origin_lon_deg,
-            coverage.origin_alt_m)
+def journey(request: Request, journey_id: str, _signed_in: SignedIn, settings: SettingsDep,
+            session: SessionDep) -> HTMLResponse:
+    row = _journey(session, journey_id)
+    signs = data.journey_signs(session, journey_id)
+    history = data.calibrations(session, row.camera_id)
+    coverage = session.get(CoverageRow, journey_id)
+    estimated = [] if coverage is None else media.estimated_track(
+        coverage.poses, coverage.origin_lat_deg, coverage.origin_lon_deg, coverage.origin_alt_m)
+    session.commit()  # the rest reads the bundle, not the database
     try:
         track = media.gps_track(settings.data_dir, request.app.state.store, row.bundle_sha256)
     except Exception as exc:  # noqa: BLE001 - a missing/unreadable bundle must not hide the page
@@ -161,11 +144,11 @@ def journey(request: Request, journey_id: str, _signed_in: SignedIn) -> HTMLResp
 
 
 @router.get("/journeys/{journey_id}/crop.png")
-def crop(request: Request, journey_id: str, track: str, frame: str, _signed_in: SignedIn) -> Response:
-    settings = _settings(request)
-    with session_scope(_url(request)) as session:
-        row = _journey(session, journey_id)
-        sign = session.get(JourneySign, f"{journey_id}:{track}")
+def crop(request: Request, journey_id: str, track: str, frame: str, _signed_in: SignedIn,
+         settings: SettingsDep, session: SessionDep) -> Response:
+    row = _journey(session, journey_id)
+    sign = session.get(JourneySignRow, f"{journey_id}:{track}")
+    session.commit()  # the rest reads the bundle, not the database
     obs = next((o for o in (sign.observations if sign else []) if o.get("frame") == frame), None)
     if obs is None:
         raise HTTPException(404, "no such observation")
@@ -183,43 +166,21 @@ def crop(request: Request, journey_id: str, track: str, frame: str, _signed_in: 
 
 
 @router.get("/map")
-def map_page(request: Request, _signed_in: SignedIn) -> HTMLResponse:
-    return _page(request, "map.html", tile_url=_settings(request).map_tile_url)
+def map_page(request: Request, _signed_in: SignedIn, settings: SettingsDep) -> HTMLResponse:
+    return _page(request, "map.html", tile_url=settings.map_tile_url)
 
 
-def _api_client(request: Request, signed_in: DashboardSession) -> httpx.AsyncClient:
-    """A client of this app's public API, in-process, calling as the signed-in operator."""
-    transport = httpx.ASGITransport(app=as_principal(request.app, signed_in.principal))
-    return httpx.AsyncClient(transport=transport, base_url="http://dashboard")
-
-
-async def _pass_through(request: Request, signed_in: DashboardSession, path: str) -> Response:
-    """A public GET answered unchanged, made as the signed-in operator."""
-    async with _api_client(request, signed_in) as client:
-        answer = await client.get(path, params=request.query_params.multi_items())
-    return Response(answer.content, status_code=answer.status_code,
-                    media_type=answer.headers.get("content-type"))
-
-
-@router.get("/api/signs")
-async def map_signs(request: Request, signed_in: SignedIn) -> Response:
-    return await _pass_through(request, signed_in, "/api/v1/signs")
-
-
-@router.get("/api/tiles/{z}/{x}/{y}.mvt")
-async def map_tile(request: Request, z: int, x: int, y: int, signed_in: SignedIn) -> Response:
-    return await _pass_through(request, signed_in, f"/api/v1/tiles/{z}/{x}/{y}.mvt")
-
-
-@router.get("/api/signs/{sign_id}")
-async def map_sign(request: Request, sign_id: str, signed_in: SignedIn) -> Response:
-    return await _pass_through(request, signed_in, f"/api/v1/signs/{quote(sign_id, safe='')}")
+# The map page's data: the public routes' functions, same parameters and answers, behind the sign-in.
+for _path, _endpoint in (("/api/signs", map_routes.get_map_signs),
+                         ("/api/tiles/{z}/{x}/{y}.mvt", tile_routes.get_tile),
+                         ("/api/signs/{sign_id}", map_routes.get_map_sign)):
+    router.add_api_route(_path, _endpoint, methods=["GET"],
+                         dependencies=[Depends(current_session)])
 
 
 @router.get("/cameras")
-def cameras(request: Request, _signed_in: SignedIn) -> HTMLResponse:
-    with session_scope(_url(request)) as session:
-        records = data.calibrations(session)
+def cameras(request: Request, _signed_in: SignedIn, session: SessionDep) -> HTMLResponse:
+    records = data.calibrations(session)
     by_camera: dict[str, list] = {}
     for record in records:
         by_camera.setdefault(record.camera_id, []).append(record)

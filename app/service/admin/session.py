@@ -4,10 +4,7 @@ SameSite=strict cookie that holds only an opaque random token.
 The server keeps the token's SHA-256 in ``admin_sessions`` with who signed in and when the session
 expires, so the cookie is worth nothing elsewhere: it is not an API key (a Bearer request with it
 gets 401), it stops working the moment it expires, and signing out deletes its row. Expired rows
-are swept at every sign-in and by the API's periodic sweep (``app.service.sweep``).
-
-The dashboard calls the public API in-process on the signed-in operator's behalf (``as_principal``):
-the principal travels in the ASGI scope, which no HTTP client can set.
+are swept at every sign-in and by the API's periodic sweep (``app.service.jobs.sweep``).
 """
 
 from __future__ import annotations
@@ -20,9 +17,10 @@ from fastapi import Request
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from app.service.auth import DASHBOARD_PRINCIPAL, Principal, key_sha256, lookup_key
-from app.service.db import session_scope
-from app.service.models import ApiKey, AdminSession, utc_now
+from app.service.auth import Principal, key_sha256, lookup_key
+from app.service.db.crud import forget_expired
+from app.service.db.models import AdminSessionRow, ApiKeyRow, utc_now
+from app.service.deps import SessionDep, SettingsDep
 from app.settings import Settings
 
 COOKIE = "signmap_admin"
@@ -38,61 +36,46 @@ class DashboardSession:
     principal: Principal
 
 
-def sign_in(settings: Settings, key: str) -> str | None:
+def sign_in(session: Session, settings: Settings, key: str) -> str | None:
     """The cookie value (a fresh opaque token) for a valid admin ``key``; None for an unknown or
     non-admin key."""
     token = secrets.token_urlsafe(32)
-    with session_scope(settings.effective_database_url) as session:
-        principal = lookup_key(session, key, settings.admin_key)
-        if principal is None or principal.role != "admin":
-            return None
-        forget_expired(session)
-        now = utc_now()
-        session.add(AdminSession(token_sha256=key_sha256(token), key_id=principal.key_id,
-                                 name=principal.name[:200], created_at=now,
-                                 expires_at=now + timedelta(seconds=settings.admin_session_max_age_s)))
+    principal = lookup_key(session, key, settings.admin_key)
+    if principal is None or principal.role != "admin":
+        return None
+    forget_expired(session)
+    now = utc_now()
+    session.add(AdminSessionRow(token_sha256=key_sha256(token), key_id=principal.key_id,
+                                name=principal.name[:200], created_at=now,
+                                expires_at=now + timedelta(seconds=settings.admin_session_max_age_s)))
     return token
 
 
-def current_session(request: Request) -> DashboardSession:
+def current_session(request: Request, settings: SettingsDep, session: SessionDep
+                    ) -> DashboardSession:
     """The signed-in session of this request; NotSignedIn without a valid, unexpired one."""
-    settings: Settings = request.app.state.settings
     token = request.cookies.get(COOKIE)
     if not token:
         raise NotSignedIn
     digest = key_sha256(token)
-    with session_scope(settings.effective_database_url) as session:
-        row = session.execute(
-            select(AdminSession.key_id, AdminSession.name, ApiKey.role)
-            .outerjoin(ApiKey, ApiKey.id == AdminSession.key_id)
-            .where(AdminSession.token_sha256 == digest, AdminSession.expires_at > utc_now())
-        ).first()
+    row = session.execute(
+        select(AdminSessionRow.key_id, AdminSessionRow.name, ApiKeyRow.role)
+        .outerjoin(ApiKeyRow, ApiKeyRow.id == AdminSessionRow.key_id)
+        .where(AdminSessionRow.token_sha256 == digest, AdminSessionRow.expires_at > utc_now())
+    ).first()
+    session.commit()  # ends the lookup's read: a long page (a map read) holds no connection for it
     if row is None:  # unknown, signed out or expired
         raise NotSignedIn
     if row.key_id is None and not settings.admin_key:  # the environment's key was unset since
         raise NotSignedIn
     if row.key_id is not None and row.role != "admin":  # the key is gone (or not admin)
         raise NotSignedIn
-    return DashboardSession(digest, Principal(key_id=row.key_id, role="admin", name=row.name))
+    return DashboardSession(token_sha256=digest,
+                            principal=Principal(key_id=row.key_id, role="admin", name=row.name))
 
 
-def sign_out(settings: Settings, token_sha256: str) -> None:
-    with session_scope(settings.effective_database_url) as session:
-        session.execute(delete(AdminSession).where(AdminSession.token_sha256 == token_sha256))
-
-
-def forget_expired(session: Session) -> int:
-    """Delete expired sessions; returns how many (indexed on expires_at, so cheap when none)."""
-    return session.execute(delete(AdminSession).where(AdminSession.expires_at <= utc_now())).rowcount
-
-
-def as_principal(app, principal: Principal):
-    """``app`` as an ASGI app whose requests are made by ``principal`` (for in-process calls)."""
-
-    async def call(scope, receive, send):
-        await app({**scope, DASHBOARD_PRINCIPAL: principal}, receive, send)
-
-    return call
+def sign_out(session: Session, token_sha256: str) -> None:
+    session.execute(delete(AdminSessionRow).where(AdminSessionRow.token_sha256 == token_sha256))
 
 
 def cookie_args(request: Request, settings: Settings) -> dict:

@@ -41,7 +41,7 @@ class Base(DeclarativeBase):
     type_annotation_map = {datetime: UTCDateTime, dict[str, Any]: JSON, list[Any]: JSON}
 
 
-class ApiKey(Base):
+class ApiKeyRow(Base):
     __tablename__ = "api_keys"
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
@@ -51,7 +51,7 @@ class ApiKey(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
-class AdminSession(Base):
+class AdminSessionRow(Base):
     """A dashboard sign-in: the SHA-256 of the opaque token in its cookie (never a key), whose key
     signed in (NULL: the environment's admin key; deleting the key ends its sessions) and when it
     stops working."""
@@ -66,7 +66,7 @@ class AdminSession(Base):
     expires_at: Mapped[datetime] = mapped_column(index=True)
 
 
-class Journey(Base):
+class JourneyRow(Base):
     __tablename__ = "journeys"
     # The same bytes from the same owner are one journey (see docs/service.md, "Re-uploads").
     __table_args__ = (UniqueConstraint("owner_key_id", "bundle_sha256", name="uq_journeys_owner_bundle"),)
@@ -94,11 +94,13 @@ class Journey(Base):
     heartbeat_at: Mapped[datetime | None]
     # Incremented by every claim; a run only writes while the row still carries its own attempt.
     attempts: Mapped[int] = mapped_column(Integer, default=0)
-    # Set when this journey's self-calibration disagrees with the camera's stored one (fusion_job).
+    # Set when this journey's self-calibration disagrees with the camera's stored one (jobs.fusion).
     calibration_flag: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    # What each pipeline stage did (StageReport.to_json() each), done or failed; NULL before 0006.
+    report: Mapped[list[Any] | None] = mapped_column(JSON)
 
 
-class JourneySign(Base):
+class JourneySignRow(Base):
     """One triangulated sign of one journey; ``observations`` is a JSON list of
     ``{"frame", "x", "y", "z", "box": [x1, y1, x2, y2] | null}`` (camera metres, original pixels)."""
 
@@ -122,7 +124,7 @@ class JourneySign(Base):
     observations: Mapped[list[Any]] = mapped_column(JSON)
 
 
-class CalibrationRecord(Base):
+class CalibrationRow(Base):
     """Every successful self-calibration; the camera's latest one is reused by later journeys."""
 
     __tablename__ = "calibrations"
@@ -145,7 +147,7 @@ class CalibrationRecord(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
-class MapSign(Base):
+class MapSignRow(Base):
     """One fused sign of the map (``app.fusion.MapSign``); ``removed_at`` set = a tombstone kept
     for GET /signs/changes. ``cov_enu`` is the (3, 3) ENU covariance as nested lists, m^2."""
 
@@ -170,7 +172,7 @@ class MapSign(Base):
     removed_at: Mapped[datetime | None]
 
 
-class MapSignMember(Base):
+class MapSignMemberRow(Base):
     __tablename__ = "map_sign_members"
 
     map_sign_id: Mapped[str] = mapped_column(ForeignKey("map_signs.id", ondelete="CASCADE"),
@@ -180,7 +182,7 @@ class MapSignMember(Base):
     weight: Mapped[float] = mapped_column(Float)
 
 
-class JourneyCoverage(Base):
+class CoverageRow(Base):
     """Where a done journey's camera looked: aligned poses ``poses`` (N x 12 floats, the rows of
     T_world_cam[:3, :4], ENU metres at the origin), the camera model, and the bbox of its centres."""
 

@@ -13,17 +13,17 @@ from datetime import datetime, timedelta
 from sqlalchemy import and_, delete, or_, select, update
 from sqlalchemy.orm import Session
 
-from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult
-from app.service.models import CalibrationRecord, Journey, JourneySign, utc_now
+from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult, StageReport
+from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow, utc_now
 
 
 def _stale(cutoff: datetime):
-    return and_(Journey.status == "running",
-                or_(Journey.heartbeat_at.is_(None), Journey.heartbeat_at < cutoff))
+    return and_(JourneyRow.status == "running",
+                or_(JourneyRow.heartbeat_at.is_(None), JourneyRow.heartbeat_at < cutoff))
 
 
 def _mine(journey_id: str, attempt: int):
-    return and_(Journey.id == journey_id, Journey.attempts == attempt, Journey.status == "running")
+    return and_(JourneyRow.id == journey_id, JourneyRow.attempts == attempt, JourneyRow.status == "running")
 
 
 def claim(session: Session, journey_id: str, stale_after_s: float, max_attempts: int) -> int | None:
@@ -33,20 +33,20 @@ def claim(session: Session, journey_id: str, stale_after_s: float, max_attempts:
     cutoff = now - timedelta(seconds=stale_after_s)
     give_up_exhausted(session, cutoff, max_attempts)
     return session.scalars(
-        update(Journey)
-        .where(Journey.id == journey_id,
-               or_(Journey.status == "queued",
-                   and_(_stale(cutoff), Journey.attempts < max_attempts)))
-        .values(status="running", attempts=Journey.attempts + 1, stage="start", progress=0.0,
+        update(JourneyRow)
+        .where(JourneyRow.id == journey_id,
+               or_(JourneyRow.status == "queued",
+                   and_(_stale(cutoff), JourneyRow.attempts < max_attempts)))
+        .values(status="running", attempts=JourneyRow.attempts + 1, stage="start", progress=0.0,
                 error=None, started_at=now, heartbeat_at=now, finished_at=None)
-        .returning(Journey.attempts)
+        .returning(JourneyRow.attempts)
     ).first()
 
 
 def give_up_exhausted(session: Session, cutoff: datetime, max_attempts: int) -> None:
     session.execute(
-        update(Journey)
-        .where(_stale(cutoff), Journey.attempts >= max_attempts)
+        update(JourneyRow)
+        .where(_stale(cutoff), JourneyRow.attempts >= max_attempts)
         .values(status="failed", finished_at=utc_now(),
                 error=f"gave up after {max_attempts} attempts: the worker died or stalled each time")
     )
@@ -58,20 +58,20 @@ def requeue_stale(session: Session, stale_after_s: float, max_attempts: int) -> 
     cutoff = utc_now() - timedelta(seconds=stale_after_s)
     give_up_exhausted(session, cutoff, max_attempts)
     return list(session.scalars(
-        update(Journey).where(_stale(cutoff)).values(status="queued", stage="requeued")
-        .returning(Journey.id)
+        update(JourneyRow).where(_stale(cutoff)).values(status="queued", stage="requeued")
+        .returning(JourneyRow.id)
     ))
 
 
 def abandon(session: Session, journey_id: str) -> None:
     """The process running this journey is known to be dead: make it stale at once."""
-    session.execute(update(Journey).where(Journey.id == journey_id, Journey.status == "running")
+    session.execute(update(JourneyRow).where(JourneyRow.id == journey_id, JourneyRow.status == "running")
                     .values(heartbeat_at=None))
 
 
 def queued_ids(session: Session) -> list[str]:
-    return list(session.scalars(select(Journey.id).where(Journey.status == "queued")
-                                .order_by(Journey.created_at)))
+    return list(session.scalars(select(JourneyRow.id).where(JourneyRow.status == "queued")
+                                .order_by(JourneyRow.created_at)))
 
 
 def beat(session: Session, journey_id: str, attempt: int, stage: str | None = None,
@@ -82,15 +82,20 @@ def beat(session: Session, journey_id: str, attempt: int, stage: str | None = No
         values["stage"] = stage[:64]
     if progress is not None:
         values["progress"] = min(1.0, max(0.0, float(progress)))
-    return session.execute(update(Journey).where(_mine(journey_id, attempt)).values(**values)
+    return session.execute(update(JourneyRow).where(_mine(journey_id, attempt)).values(**values)
                            ).rowcount == 1
 
 
-def fail(session: Session, journey_id: str, attempt: int, stage: str | None, reason: str) -> bool:
-    values: dict = {"status": "failed", "error": reason, "finished_at": utc_now()}
+def fail(session: Session, journey_id: str, attempt: int, stage: str | None, reason: str,
+         report: list[StageReport] | None = None) -> bool:
+    """Mark this run's journey failed at ``stage`` (None: not a pipeline stage) with ``reason`` and
+    the reports of the stages that ran (None: the pipeline gave none, e.g. an internal error);
+    False if this run lost the job."""
+    values: dict = {"status": "failed", "error": reason, "finished_at": utc_now(),
+                    "report": None if report is None else [r.to_json() for r in report]}
     if stage is not None:
         values["stage"] = stage[:64]
-    return session.execute(update(Journey).where(_mine(journey_id, attempt)).values(**values)
+    return session.execute(update(JourneyRow).where(_mine(journey_id, attempt)).values(**values)
                            ).rowcount == 1
 
 
@@ -99,14 +104,15 @@ def latest_calibration(session: Session, camera_id: str, exclude_journey_id: str
     """The camera's newest stored self-calibration, not counting this journey's own (so that a
     re-run of a journey calibrates itself again, exactly as the first run did)."""
     row = session.scalars(
-        select(CalibrationRecord)
-        .where(CalibrationRecord.camera_id == camera_id,
-               CalibrationRecord.journey_id != exclude_journey_id)
-        .order_by(CalibrationRecord.created_at.desc(), CalibrationRecord.id.desc())
+        select(CalibrationRow)
+        .where(CalibrationRow.camera_id == camera_id,
+               CalibrationRow.journey_id != exclude_journey_id)
+        .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc())
     ).first()
     if row is None:
         return None
-    return CameraModel(row.width, row.height, row.fx, row.fy, row.cx, row.cy, row.k1, row.k2)
+    return CameraModel(width=row.width, height=row.height, fx=row.fx, fy=row.fy, cx=row.cx,
+                       cy=row.cy, k1=row.k1, k2=row.k2)
 
 
 def _finite_or_none(value: float | None) -> float | None:
@@ -117,15 +123,15 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
                  result: JourneyResult, timings_s: dict[str, float]) -> bool:
     """Replace the journey's signs and calibration with ``result`` and mark it done, all in the
     caller's one transaction. False (nothing written) when this run no longer owns the journey."""
-    row = session.scalars(select(Journey).where(_mine(journey_id, attempt)).with_for_update()
+    row = session.scalars(select(JourneyRow).where(_mine(journey_id, attempt)).with_for_update()
                           ).first()
     if row is None:
         return False
-    session.execute(delete(JourneySign).where(JourneySign.journey_id == journey_id))
-    session.execute(delete(CalibrationRecord).where(CalibrationRecord.journey_id == journey_id))
+    session.execute(delete(JourneySignRow).where(JourneySignRow.journey_id == journey_id))
+    session.execute(delete(CalibrationRow).where(CalibrationRow.journey_id == journey_id))
     boxes = {(d.frame_id, d.track_id): [d.x1, d.y1, d.x2, d.y2] for d in journey.detections}
     session.add_all(
-        JourneySign(
+        JourneySignRow(
             id=f"{journey_id}:{s.track_id}", journey_id=journey_id, track_id=s.track_id, cls=s.cls,
             lat_deg=float(s.lat_deg), lon_deg=float(s.lon_deg), alt_m=_finite_or_none(s.alt_m),
             x_enu_m=float(s.xyz_enu[0]), y_enu_m=float(s.xyz_enu[1]), z_enu_m=float(s.xyz_enu[2]),
@@ -140,7 +146,7 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     calib = result.calibration
     if calib.source == "self":
         cam = calib.camera
-        session.add(CalibrationRecord(
+        session.add(CalibrationRow(
             camera_id=journey.camera_id, journey_id=journey_id, width=cam.width, height=cam.height,
             **cam.params(), n_images=calib.n_images, n_registered=calib.n_registered,
             reprojection_error_px=_finite_or_none(calib.reprojection_error_px),
@@ -151,5 +157,6 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     row.calibration = calib.camera.params()
     row.calibration_source = calib.source
     row.timings_s = {k: _finite_or_none(v) for k, v in timings_s.items()}
+    row.report = [r.to_json() for r in result.report]
     row.finished_at = row.heartbeat_at = now
     return True

@@ -18,6 +18,13 @@ class ErrorOut(BaseModel):
         "gps.csv: timestamp_s must increase (row 12)"])
 
 
+# The error answers every route with a key can give (``responses=`` of the route decorators).
+AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorOut, "description": "no or unknown API key"},
+    403: {"model": ErrorOut, "description": "the key's role may not make this call"},
+}
+
+
 class JourneyAccepted(BaseModel):
     id: str = Field(examples=[JOURNEY_ID_EXAMPLE])
     status: Literal["queued", "running", "done", "failed"] = Field(
@@ -34,6 +41,13 @@ class CalibrationOut(BaseModel):
     cy: float = Field(examples=[172.9])
     k1: float = Field(examples=[-0.3])
     k2: float = Field(examples=[0.1])
+
+
+class StageReportOut(BaseModel):
+    stage: str = Field(examples=["calibrate"])
+    summary: str = Field(description="how the stage ended, one line",
+                         examples=["self-calibrated on turn 1: 48 of 52 images registered"])
+    details: list[str] = Field(description="one line per thing it tried")
 
 
 class JourneyOut(BaseModel):
@@ -68,6 +82,10 @@ class JourneyOut(BaseModel):
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
+    report: list[StageReportOut] | None = Field(
+        None, description="what each pipeline stage did, in order (a failed journey's last entry "
+                          "is the stage that failed); null for journeys processed before reports "
+                          "existed")
 
 
 class PointGeometry(BaseModel):
@@ -102,13 +120,57 @@ class SignProperties(BaseModel):
         None, description="the sign in each observing frame's rectified camera, metres")
 
 
-class SignFeature(BaseModel):
+class PointFeature(BaseModel):
+    """A GeoJSON Point feature; each kind of sign adds its ``properties``."""
+
     type: Literal["Feature"] = "Feature"
     id: str
     geometry: PointGeometry
+
+
+class FeatureCollection(BaseModel):
+    type: Literal["FeatureCollection"] = "FeatureCollection"
+
+
+class SignFeature(PointFeature):
     properties: SignProperties
 
 
-class SignCollection(BaseModel):
-    type: Literal["FeatureCollection"] = "FeatureCollection"
+class SignCollection(FeatureCollection):
     features: list[SignFeature]
+
+
+MapSignState = Literal["new", "confirmed", "possibly_removed"]
+
+
+class MapSignProperties(BaseModel):
+    model_config = ConfigDict(extra="allow", populate_by_name=True)
+
+    id: str = Field(examples=["ms-3f2a9c0d1e4b5a69"])
+    class_: str = Field(alias="class", examples=["stop"])
+    state: MapSignState
+    std_m: float = Field(description="horizontal 1-sigma of the fused position, metres")
+    n_journeys: int
+    n_observations: int
+    first_seen_at: datetime
+    last_seen_at: datetime
+    facing_deg: float | None = Field(
+        None, description="compass bearing its face points to (degrees clockwise from north), "
+                          "the circular mean of the journeys'; null when unknown")
+
+
+class MapSignFeature(PointFeature):
+    properties: MapSignProperties
+
+
+class MapSignCollection(FeatureCollection):
+    features: list[MapSignFeature]
+    next: str | None = Field(description="pass as `cursor` for the next page; null on the last")
+
+
+class MapChanges(BaseModel):
+    since: datetime
+    until: datetime = Field(description="pass as the next call's `since`")
+    created: list[MapSignFeature]
+    updated: list[MapSignFeature]
+    removed: list[dict[str, Any]] = Field(description="tombstones: {id, removed_at}")

@@ -15,25 +15,25 @@ from fastapi import Request
 from sqlalchemy import and_, or_, select, tuple_
 from sqlalchemy.engine import Connection
 
-from app.service.db import get_engine
-from app.service.models import MapSign
-from app.service.queries import BBox
+from app.service.db.session import get_engine
+from app.service.db.models import MapSignRow
+from app.service.db.queries import BBox
 
 T = TypeVar("T")
 # What a page carries per sign: the GeoJSON of the wire contract, nothing more (no covariance or
 # evidence: those are GET /signs/{id}'s).
-PAGE_COLUMNS = (MapSign.id, MapSign.cls, MapSign.lon_deg, MapSign.lat_deg, MapSign.alt_m,
-                MapSign.state, MapSign.std_m, MapSign.n_journeys, MapSign.n_observations,
-                MapSign.first_seen_at, MapSign.last_seen_at, MapSign.facing_deg)
+PAGE_COLUMNS = (MapSignRow.id, MapSignRow.cls, MapSignRow.lon_deg, MapSignRow.lat_deg, MapSignRow.alt_m,
+                MapSignRow.state, MapSignRow.std_m, MapSignRow.n_journeys, MapSignRow.n_observations,
+                MapSignRow.first_seen_at, MapSignRow.last_seen_at, MapSignRow.facing_deg)
 
 
 def live_in_bbox(bbox: BBox):
     """Plain lat/lon ranges on live signs: the partial index of migration 0005 answers them on
     PostgreSQL and SQLite alike, and the planner has real statistics for them (PostgreSQL's
     estimate for a GiST point-in-box is a constant)."""
-    return and_(MapSign.removed_at.is_(None),
-                MapSign.lat_deg.between(bbox.min_lat, bbox.max_lat),
-                or_(*(MapSign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
+    return and_(MapSignRow.removed_at.is_(None),
+                MapSignRow.lat_deg.between(bbox.min_lat, bbox.max_lat),
+                or_(*(MapSignRow.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
 
 
 class BadCursor(ValueError):
@@ -64,14 +64,14 @@ def page_query(bbox: BBox, cls: str | None, since: datetime | None, state: str |
     sorted the whole box: ~29k signs of a city box at 1 M signs, 25-40 ms a page.)"""
     query = select(*PAGE_COLUMNS).where(live_in_bbox(bbox))
     if cls is not None:
-        query = query.where(MapSign.cls == cls)
+        query = query.where(MapSignRow.cls == cls)
     if since is not None:
-        query = query.where(MapSign.updated_at >= since)
+        query = query.where(MapSignRow.updated_at >= since)
     if state is not None:
-        query = query.where(MapSign.state == state)
+        query = query.where(MapSignRow.state == state)
     if cursor is not None:
-        query = query.where(tuple_(MapSign.lat_deg, MapSign.lon_deg, MapSign.id) > tuple_(*cursor))
-    return query.order_by(MapSign.lat_deg, MapSign.lon_deg, MapSign.id).limit(limit)
+        query = query.where(tuple_(MapSignRow.lat_deg, MapSignRow.lon_deg, MapSignRow.id) > tuple_(*cursor))
+    return query.order_by(MapSignRow.lat_deg, MapSignRow.lon_deg, MapSignRow.id).limit(limit)
 
 
 class _UtcText(dict):

@@ -1,4 +1,5 @@
-"""Reading signs out of the database as GeoJSON features."""
+"""Reading signs out of the database as GeoJSON features: a journey's signs, a map sign with its
+members (a page of the map is ``map_read``'s)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from sqlalchemy import Select, and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.geojson import sign_feature
-from app.service.models import Journey, JourneySign
+from app.service.db.models import JourneyRow, JourneySignRow, MapSignMemberRow, MapSignRow
 
 
 @dataclass(frozen=True)
@@ -48,38 +49,52 @@ class BBox:
 def _in_bbox(dialect: str, bbox: BBox):
     if dialect == "postgresql":
         # Matches the GiST index on point(lon_deg, lat_deg) (migration 0001).
-        point = func.point(JourneySign.lon_deg, JourneySign.lat_deg)
+        point = func.point(JourneySignRow.lon_deg, JourneySignRow.lat_deg)
         return or_(*(point.op("<@")(func.box(func.point(lo, bbox.min_lat),
                                              func.point(hi, bbox.max_lat)))
                      for lo, hi in bbox.lon_ranges()))
-    return and_(JourneySign.lat_deg.between(bbox.min_lat, bbox.max_lat),
-                or_(*(JourneySign.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
+    return and_(JourneySignRow.lat_deg.between(bbox.min_lat, bbox.max_lat),
+                or_(*(JourneySignRow.lon_deg.between(lo, hi) for lo, hi in bbox.lon_ranges())))
 
 
 def map_signs_query(dialect: str, bbox: BBox, cls: str | None = None, limit: int = 1000) -> Select:
-    query = (select(JourneySign).join(Journey, Journey.id == JourneySign.journey_id)
-             .where(Journey.status == "done", _in_bbox(dialect, bbox))
-             .order_by(JourneySign.id).limit(limit))
-    return query if cls is None else query.where(JourneySign.cls == cls)
-
-
-def map_signs(session: Session, bbox: BBox, cls: str | None = None, limit: int = 1000
-              ) -> list[dict[str, Any]]:
-    """The map's signs inside ``bbox`` as GeoJSON features. For now the union of every done
-    journey's signs; the fusion step will replace this one function with fused map signs."""
-    query = map_signs_query(session.get_bind().dialect.name, bbox, cls, limit)
-    return [_feature(row, with_observations=False) for row in session.scalars(query)]
+    query = (select(JourneySignRow).join(JourneyRow, JourneyRow.id == JourneySignRow.journey_id)
+             .where(JourneyRow.status == "done", _in_bbox(dialect, bbox))
+             .order_by(JourneySignRow.id).limit(limit))
+    return query if cls is None else query.where(JourneySignRow.cls == cls)
 
 
 def journey_signs(session: Session, journey_id: str) -> list[dict[str, Any]]:
-    rows = session.scalars(select(JourneySign).where(JourneySign.journey_id == journey_id)
-                           .order_by(JourneySign.id))
+    rows = session.scalars(select(JourneySignRow).where(JourneySignRow.journey_id == journey_id)
+                           .order_by(JourneySignRow.id))
     return [_feature(row, with_observations=True) for row in rows]
 
 
-def _feature(row: JourneySign, with_observations: bool) -> dict[str, Any]:
+def _feature(row: JourneySignRow, with_observations: bool) -> dict[str, Any]:
     extra: dict[str, Any] = {"observations": row.observations} if with_observations else {}
     return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m,
                         track_id=row.track_id, journey_id=row.journey_id, std_m=row.std_m,
                         r95_h_m=row.r95_h_m, facing_deg=row.facing_deg,
                         reprojection_rms_px=row.reprojection_rms_px, **extra)
+
+
+def map_sign_feature(row: MapSignRow, **extra: Any) -> dict[str, Any]:
+    """A map sign as GeoJSON (times as ``isoformat``); ``extra`` properties after its own."""
+    return sign_feature(row.id, row.cls, row.lon_deg, row.lat_deg, row.alt_m, state=row.state,
+                        std_m=row.std_m, n_journeys=row.n_journeys,
+                        n_observations=row.n_observations,
+                        first_seen_at=row.first_seen_at.isoformat(),
+                        last_seen_at=row.last_seen_at.isoformat(), facing_deg=row.facing_deg,
+                        **extra)
+
+
+def map_sign_members(session: Session, map_sign_id: str) -> list[dict[str, Any]]:
+    """The journey signs fused into a map sign, with their weights and observations."""
+    rows = session.execute(
+        select(MapSignMemberRow.weight, JourneySignRow).join(
+            JourneySignRow, JourneySignRow.id == MapSignMemberRow.journey_sign_id)
+        .where(MapSignMemberRow.map_sign_id == map_sign_id).order_by(JourneySignRow.id)).all()
+    return [{"journey_sign_id": s.id, "journey_id": s.journey_id, "track_id": s.track_id,
+             "class": s.cls, "lat": s.lat_deg, "lon": s.lon_deg, "alt_m": s.alt_m,
+             "std_m": s.std_m, "weight": weight, "observations": s.observations}
+            for weight, s in rows]

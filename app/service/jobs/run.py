@@ -9,10 +9,11 @@ import time
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.run import process_journey
-from app.pipeline.types import PipelineError
-from app.service import fusion_job, jobstate, storage
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.pipeline.types import PipelineError, StageReport
+from app.service import storage
+from app.service.jobs import fusion, state
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ class _Heartbeat(threading.Thread):
         while not self.stopped.wait(self.interval_s):
             try:
                 with session_scope(self.url) as session:
-                    if not jobstate.beat(session, self.journey_id, self.attempt):
+                    if not state.beat(session, self.journey_id, self.attempt):
                         self.lost.set()
                         return
             except Exception:  # a database hiccup must not end the job; the next beat retries
@@ -49,10 +50,10 @@ def run_journey(journey_id: str, settings: Settings) -> None:
     first and replaces, never adds, the journey's signs."""
     url = settings.effective_database_url
     with session_scope(url) as session:
-        attempt = jobstate.claim(session, journey_id, settings.stale_after_s, settings.max_attempts)
-        row = session.get(Journey, journey_id) if attempt is not None else None
+        attempt = state.claim(session, journey_id, settings.stale_after_s, settings.max_attempts)
+        row = session.get(JourneyRow, journey_id) if attempt is not None else None
         sha256, camera_id = (row.bundle_sha256, row.camera_id) if row else (None, None)
-        known_camera = (jobstate.latest_calibration(session, camera_id, journey_id)
+        known_camera = (state.latest_calibration(session, camera_id, journey_id)
                         if row else None)
     if attempt is None:
         log.info("journey %s: not claimed (finished, unknown or owned by a live run)", journey_id)
@@ -69,7 +70,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
             raise Superseded(journey_id)
         log.info("journey %s: %s %.0f%% %s", journey_id, stage, 100 * fraction, message)
         with session_scope(url) as session:
-            if not jobstate.beat(session, journey_id, attempt, stage, fraction):
+            if not state.beat(session, journey_id, attempt, stage, fraction):
                 raise Superseded(journey_id)
 
     stage = "extract"
@@ -86,7 +87,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",
                                  known_camera=known_camera, progress=progress)
         timings_s = {**result.timings_s, "total_s": round(time.perf_counter() - t0, 3)}
-        stored = fusion_job.store_and_fuse(url, journey_id, attempt, journey, result, timings_s,
+        stored = fusion.store_and_fuse(url, journey_id, attempt, journey, result, timings_s,
                                            known_camera, settings)
         if not stored:
             raise Superseded(journey_id)
@@ -98,7 +99,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
                     journey_id, attempt)
     except PipelineError as exc:
         log.info("journey %s: failed at %s: %s", journey_id, exc.stage, exc.reason)
-        _fail(url, journey_id, attempt, exc.stage, exc.reason)
+        _fail(url, journey_id, attempt, exc.stage, exc.reason, exc.report)
     except Exception as exc:
         log.exception("journey %s: internal error during %s", journey_id, stage)
         _fail(url, journey_id, attempt, None,
@@ -108,6 +109,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str) -> None:
+def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str,
+          report: list[StageReport] | None = None) -> None:
     with session_scope(url) as session:
-        jobstate.fail(session, journey_id, attempt, stage, reason)
+        state.fail(session, journey_id, attempt, stage, reason, report)

@@ -21,9 +21,9 @@ import shapely
 from sqlalchemy import Integer, cast, func, select
 from sqlalchemy.engine import Connection
 
-from app.service.map_read import live_in_bbox
-from app.service.models import MapSign
-from app.service.queries import BBox
+from app.service.db.map_read import live_in_bbox
+from app.service.db.models import MapSignRow
+from app.service.db.queries import BBox
 
 EXTENT = 4096
 LAYER = "signs"
@@ -49,8 +49,8 @@ class Tile:
 
     def bbox(self) -> BBox:
         n = 2 ** self.z
-        return BBox(self.x / n * 360.0 - 180.0, _lat(self.y + 1, n),
-                    (self.x + 1) / n * 360.0 - 180.0, _lat(self.y, n))
+        return BBox(min_lon=self.x / n * 360.0 - 180.0, min_lat=_lat(self.y + 1, n),
+                    max_lon=(self.x + 1) / n * 360.0 - 180.0, max_lat=_lat(self.y, n))
 
     def pixels(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """(N, 2) tile coordinates, y down, 0..EXTENT."""
@@ -68,8 +68,8 @@ def _lat(y: int, n: int) -> float:
 def _points(conn: Connection, box: BBox, cap: int) -> list[tuple] | None:
     """The tile's signs, or None when there are more than ``cap``."""
     rows = conn.execute(
-        select(MapSign.id, MapSign.cls, MapSign.state, MapSign.lon_deg, MapSign.lat_deg,
-               MapSign.facing_deg)
+        select(MapSignRow.id, MapSignRow.cls, MapSignRow.state, MapSignRow.lon_deg, MapSignRow.lat_deg,
+               MapSignRow.facing_deg)
         .where(live_in_bbox(box)).limit(cap + 1)).all()
     return None if len(rows) > cap else [(1, *r) for r in rows]
 
@@ -81,12 +81,12 @@ def _clusters(conn: Connection, box: BBox, grid: int) -> list[tuple]:
         lambda v: cast(v, Integer))  # SQLite: truncation is floor for the non-negative offsets here
     cw = (box.max_lon - box.min_lon) / grid
     ch = (box.max_lat - box.min_lat) / grid
-    cx = floor((MapSign.lon_deg - box.min_lon) / cw)
-    cy = floor((MapSign.lat_deg - box.min_lat) / ch)
+    cx = floor((MapSignRow.lon_deg - box.min_lon) / cw)
+    cy = floor((MapSignRow.lat_deg - box.min_lat) / ch)
     rows = conn.execute(
-        select(func.count(), func.min(MapSign.id), func.min(MapSign.cls), func.max(MapSign.cls),
-               func.min(MapSign.state), func.max(MapSign.state), func.avg(MapSign.lon_deg),
-               func.avg(MapSign.lat_deg))
+        select(func.count(), func.min(MapSignRow.id), func.min(MapSignRow.cls), func.max(MapSignRow.cls),
+               func.min(MapSignRow.state), func.max(MapSignRow.state), func.avg(MapSignRow.lon_deg),
+               func.avg(MapSignRow.lat_deg))
         .where(live_in_bbox(box)).group_by(cx, cy)).all()
     return [(n, first, cls_lo if cls_lo == cls_hi else None,
              st_lo if st_lo == st_hi else None, lon, lat, None)
@@ -152,4 +152,4 @@ class TileCache:
 
 def map_version(conn: Connection) -> Any:
     """The newest change of the map (index ix_map_signs_updated_at: one index probe)."""
-    return conn.execute(select(func.max(MapSign.updated_at))).scalar()
+    return conn.execute(select(func.max(MapSignRow.updated_at))).scalar()

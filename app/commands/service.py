@@ -1,12 +1,32 @@
-"""Service subcommands of ``signmap``: serve, worker, db upgrade, keys create."""
+"""Service subcommands of ``signmap``: serve, worker, db upgrade, keys create; and the composition of
+the API with its job queue (``create_service_app``), the one place that knows both the service
+(``app.service``) and the Celery worker (``worker``)."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+from typing import TYPE_CHECKING
 
-from app.service.models import ROLES
+from app.service.db.models import ROLES
 from app.settings import Settings
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
+
+
+def create_service_app(settings: Settings | None = None) -> FastAPI:
+    """The API for ``settings`` (default: from the environment) with its job queue: Celery when a
+    broker is configured, else the embedded worker (``app.service.app.create_app``'s own choice).
+    ``signmap serve`` runs it; ``uvicorn --factory app.commands.service:create_service_app`` too."""
+    from app.service.app import create_app
+
+    settings = settings or Settings()
+    if not settings.broker_url:
+        return create_app(settings)
+    from worker.queue import CeleryQueue
+
+    return create_app(settings, queue=CeleryQueue(settings))
 
 
 def _logging(settings: Settings) -> None:
@@ -18,8 +38,7 @@ def serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from app.service import startup
-    from app.service.app import create_app
-    from app.service.db import upgrade
+    from app.service.db.session import upgrade
 
     settings = Settings()
     _logging(settings)
@@ -31,7 +50,7 @@ def serve(args: argparse.Namespace) -> int:
         startup.check_database(settings.effective_database_url)
     except startup.StartupError as exc:
         raise SystemExit(f"signmap serve: {exc}") from None
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_config=None)
+    uvicorn.run(create_service_app(settings), host=args.host, port=args.port, log_config=None)
     return 0
 
 
@@ -56,7 +75,7 @@ def worker(args: argparse.Namespace) -> int:
 
 def db_upgrade(args: argparse.Namespace) -> int:
     from app.service import startup
-    from app.service.db import upgrade
+    from app.service.db.session import upgrade
 
     settings = Settings()
     _logging(settings)
@@ -74,7 +93,7 @@ def db_upgrade(args: argparse.Namespace) -> int:
 def keys_create(args: argparse.Namespace) -> int:
     from app.service import startup
     from app.service.auth import create_key
-    from app.service.db import session_scope
+    from app.service.db.session import session_scope
 
     settings = Settings()
     try:

@@ -14,7 +14,7 @@ from alembic.config import Config
 from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 
 _SESSIONS: dict[tuple[str, int], sessionmaker[Session]] = {}
 _LOCK = threading.Lock()
@@ -48,6 +48,11 @@ def _sessionmaker(url: str) -> sessionmaker[Session]:
 
 def get_engine(url: str) -> Engine:
     return _sessionmaker(url).kw["bind"]
+
+
+def new_session(url: str) -> Session:
+    """A fresh session on the database at ``url``; the caller commits and closes it."""
+    return _sessionmaker(url)()
 
 
 @contextmanager

@@ -11,8 +11,8 @@ import numpy as np
 from app.fusion import JourneyCoverage, JourneySign, MapSign
 from app.pipeline.geodesy import frame_at
 from app.pipeline.types import CameraModel, JourneyResult
-from app.service.models import (Journey, JourneyCoverage as CoverageRow,
-                                JourneySign as JourneySignRow, MapSign as MapSignRow)
+from app.service.db.models import (JourneyRow, CoverageRow,
+                                JourneySignRow, MapSignRow)
 
 
 def journey_sign(row: JourneySignRow, journey_key: str, captured_at_s: float) -> JourneySign:
@@ -23,7 +23,7 @@ def journey_sign(row: JourneySignRow, journey_key: str, captured_at_s: float) ->
                        facing_deg=row.facing_deg)
 
 
-def coverage_row(journey: Journey, journey_key: str, captured_at_s: float,
+def coverage_row(journey: JourneyRow, journey_key: str, captured_at_s: float,
                  result: JourneyResult) -> CoverageRow:
     T_world_cam = np.asarray(result.trajectory_T_world_cam, dtype=float).reshape(-1, 4, 4)
     origin = tuple(float(v) for v in result.origin_lat_lon_alt)

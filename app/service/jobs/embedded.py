@@ -17,9 +17,9 @@ import queue
 import signal
 import threading
 
-from app.service import jobstate
-from app.service.db import session_scope
-from app.service.sweep import sweep_work
+from app.service.jobs import state
+from app.service.db.session import session_scope
+from app.service.jobs.sweep import sweep_work
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -35,7 +35,7 @@ def _child_main(journey_id: str, settings: Settings) -> None:
     signal.signal(signal.SIGTERM, _exit_on_signal)
     logging.basicConfig(level=settings.log_level,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    from app.service.jobs import run_journey
+    from app.service.jobs.run import run_journey
 
     run_journey(journey_id, settings)
 
@@ -88,9 +88,9 @@ class EmbeddedWorker:
         """Requeue stale running journeys, delete the work dirs of runs no longer running and
         submit every queued journey."""
         with session_scope(self.settings.effective_database_url) as session:
-            requeued = jobstate.requeue_stale(session, self.settings.stale_after_s,
+            requeued = state.requeue_stale(session, self.settings.stale_after_s,
                                               self.settings.max_attempts)
-            ids = jobstate.queued_ids(session)
+            ids = state.queued_ids(session)
         if requeued:
             log.warning("requeued journeys with a stale heartbeat: %s", ", ".join(requeued))
         sweep_work(self.settings.data_dir, self.settings.effective_database_url)
@@ -123,5 +123,5 @@ class EmbeddedWorker:
                         "journey %s: job process ended with exit code %s", journey_id,
                         self._child.exitcode)
                 with session_scope(self.settings.effective_database_url) as session:
-                    jobstate.abandon(session, journey_id)
+                    state.abandon(session, journey_id)
             self._child = None

@@ -5,8 +5,8 @@
   are taken for dead: the API sweeps them at start and every ``sweep_interval_s``.
 * ``work/<journey>-<n>/``: a worker killed mid-job leaves its run's files. A directory is kept
   only while its journey is ``running`` with attempt ``n``; workers sweep at start and after every
-  requeue of stale journeys (``worker.tasks``, ``app.service.embedded``).
-* expired dashboard sessions (``admin.session.forget_expired``), swept with ``incoming/``.
+  requeue of stale journeys (``worker.tasks``, ``app.service.jobs.embedded``).
+* expired dashboard sessions (``db.crud.forget_expired``), swept with ``incoming/``.
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ from pathlib import Path
 
 from sqlalchemy import select
 
-from app.service.db import session_scope
-from app.service.models import Journey
+from app.service.db.crud import forget_expired
+from app.service.db.session import session_scope
+from app.service.db.models import JourneyRow
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -74,7 +75,7 @@ def sweep_work(data_dir: Path, url: str) -> list[str]:
         return []
     with session_scope(url) as session:
         live = {f"{journey_id}-{attempt}" for journey_id, attempt in session.execute(
-            select(Journey.id, Journey.attempts).where(Journey.status == "running"))}
+            select(JourneyRow.id, JourneyRow.attempts).where(JourneyRow.status == "running"))}
     removed = [name for name in names if name not in live]
     for name in removed:
         _remove(directory / name)
@@ -86,8 +87,6 @@ def sweep_work(data_dir: Path, url: str) -> list[str]:
 
 def sweep_api(settings: Settings) -> None:
     """The API's sweep: orphaned uploads and expired dashboard sessions."""
-    from app.service.admin.session import forget_expired
-
     sweep_incoming(settings.data_dir, settings.incoming_max_age_s)
     with session_scope(settings.effective_database_url) as session:
         n = forget_expired(session)

@@ -26,11 +26,12 @@ from sqlalchemy.orm import Session
 
 from app.fusion import JourneyCoverage, JourneySign, MapSign, detect_changes, fuse_map
 from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult
-from app.service import jobstate, map_rows
-from app.service.db import session_scope
-from app.service.models import (Journey, JourneyCoverage as CoverageRow,
-                                JourneySign as JourneySignRow, MapSign as MapSignRow,
-                                MapSignMember, utc_now)
+from app.service.db import map_rows
+from app.service.jobs import state
+from app.service.db.session import session_scope
+from app.service.db.models import (JourneyRow, CoverageRow,
+                                JourneySignRow, MapSignRow,
+                                MapSignMemberRow, utc_now)
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -57,8 +58,8 @@ class Region:
             return None
         dlat = margin_m / M_PER_DEG_LAT
         dlon = margin_m / (M_PER_DEG_LAT * max(0.01, math.cos(math.radians(float(lat.mean())))))
-        return cls(float(lat.min()) - dlat, float(lon.min()) - dlon,
-                   float(lat.max()) + dlat, float(lon.max()) + dlon)
+        return cls(min_lat=float(lat.min()) - dlat, min_lon=float(lon.min()) - dlon,
+                   max_lat=float(lat.max()) + dlat, max_lon=float(lon.max()) + dlon)
 
     def contains(self, lat_col, lon_col):
         return and_(lat_col.between(self.min_lat, self.max_lat),
@@ -95,13 +96,13 @@ def calibration_flag(stored: CameraModel | None, result: JourneyResult, max_rel:
             "threshold": max_rel, "stored": stored.params()}
 
 
-def journey_key(row: Journey) -> str:
+def journey_key(row: JourneyRow) -> str:
     # Content first, so the canonical fusion order does not depend on random ids; the id keeps two
     # uploads of the same bytes (by two owners) apart.
     return f"{row.bundle_sha256}/{row.id}"
 
 
-def captured_at_s(row: Journey) -> float:
+def captured_at_s(row: JourneyRow) -> float:
     if row.captured_at:
         try:
             when = datetime.fromisoformat(row.captured_at.replace("Z", "+00:00"))
@@ -114,11 +115,11 @@ def captured_at_s(row: Journey) -> float:
 def store_journey(session: Session, journey_id: str, attempt: int, journey: JourneyData,
                   result: JourneyResult, timings_s: dict[str, float],
                   known_camera: CameraModel | None, settings: Settings) -> bool:
-    """In the caller's transaction: the journey's result (``jobstate.store_result``), its coverage
+    """In the caller's transaction: the journey's result (``state.store_result``), its coverage
     and its calibration flag. False (nothing written) when this run no longer owns the journey."""
-    if not jobstate.store_result(session, journey_id, attempt, journey, result, timings_s):
+    if not state.store_result(session, journey_id, attempt, journey, result, timings_s):
         return False
-    row = session.get(Journey, journey_id)
+    row = session.get(JourneyRow, journey_id)
     row.calibration_flag = calibration_flag(known_camera, result, settings.calibration_flag_rel)
     if row.calibration_flag:
         log.warning("journey %s: %s", journey_id, row.calibration_flag["reason"])
@@ -164,10 +165,10 @@ def refuse_around(url: str, journey_id: str, settings: Settings) -> FusionSummar
 def delete_journey(url: str, journey_id: str, settings: Settings) -> bool:
     """Delete a journey with its signs and coverage and re-fuse its region, in one transaction."""
     with fusion_session(url) as session:
-        if session.get(Journey, journey_id) is None:
+        if session.get(JourneyRow, journey_id) is None:
             return False
         region = _journey_region(session, journey_id, settings.fusion_region_margin_m)
-        session.execute(delete(Journey).where(Journey.id == journey_id))
+        session.execute(delete(JourneyRow).where(JourneyRow.id == journey_id))
         summary = fuse_region(session, region, settings) if region is not None else None
     if summary is not None:
         _log(f"deleted journey {journey_id}", summary)
@@ -188,10 +189,10 @@ def fusion_session(url: str) -> Iterator[Session]:
             yield session
 
 
-def _done_signs(session: Session, where) -> dict[str, tuple[JourneySignRow, Journey]]:
-    rows = session.execute(select(JourneySignRow, Journey)
-                           .join(Journey, Journey.id == JourneySignRow.journey_id)
-                           .where(Journey.status == "done", where)).all()
+def _done_signs(session: Session, where) -> dict[str, tuple[JourneySignRow, JourneyRow]]:
+    rows = session.execute(select(JourneySignRow, JourneyRow)
+                           .join(JourneyRow, JourneyRow.id == JourneySignRow.journey_id)
+                           .where(JourneyRow.status == "done", where)).all()
     return {s.id: (s, j) for s, j in rows}
 
 
@@ -202,10 +203,10 @@ def _closure(session: Session, region: Region):
         MapSignRow.removed_at.is_(None), region.contains(MapSignRow.lat_deg, MapSignRow.lon_deg))))
     looked_up = set(signs)  # members of journeys not done (being re-run) are looked up once
     while True:
-        linked = set(session.scalars(select(MapSignMember.map_sign_id).where(
-            MapSignMember.journey_sign_id.in_(list(signs))))) if signs else set()
-        members = set(session.scalars(select(MapSignMember.journey_sign_id).where(
-            MapSignMember.map_sign_id.in_(list(old | linked))))) if old | linked else set()
+        linked = set(session.scalars(select(MapSignMemberRow.map_sign_id).where(
+            MapSignMemberRow.journey_sign_id.in_(list(signs))))) if signs else set()
+        members = set(session.scalars(select(MapSignMemberRow.journey_sign_id).where(
+            MapSignMemberRow.map_sign_id.in_(list(old | linked))))) if old | linked else set()
         missing = members - looked_up
         grown = old | linked
         if not missing and grown == old:
@@ -219,8 +220,8 @@ def _closure(session: Session, region: Region):
 def _coverages(session: Session, signs: list[JourneySign], reach_m: float
                ) -> list[JourneyCoverage]:
     box = Region.around([s.lat_deg for s in signs], [s.lon_deg for s in signs], reach_m)
-    rows = session.execute(select(CoverageRow).join(Journey).where(
-        Journey.status == "done", CoverageRow.min_lat_deg <= box.max_lat,
+    rows = session.execute(select(CoverageRow).join(JourneyRow).where(
+        JourneyRow.status == "done", CoverageRow.min_lat_deg <= box.max_lat,
         CoverageRow.max_lat_deg >= box.min_lat, CoverageRow.min_lon_deg <= box.max_lon,
         CoverageRow.max_lon_deg >= box.min_lon)).scalars().all()
     detected: dict[str, set[str]] = {}
@@ -243,7 +244,7 @@ def fuse_region(session: Session, region: Region, settings: Settings) -> FusionS
     existing = {r.id: r for r in session.scalars(select(MapSignRow).where(
         MapSignRow.id.in_(touched)))} if touched else {}
     if touched:
-        session.execute(delete(MapSignMember).where(MapSignMember.map_sign_id.in_(touched)))
+        session.execute(delete(MapSignMemberRow).where(MapSignMemberRow.map_sign_id.in_(touched)))
     created, updated, unchanged = [], [], 0
     for sign in judged:
         values = map_rows.map_sign_values(sign)
@@ -264,15 +265,16 @@ def fuse_region(session: Session, region: Region, settings: Settings) -> FusionS
                 unchanged += 1
     session.flush()
     weights = {m.map_id: m.evidence.get("weights", {}) for m in judged}
-    session.add_all(MapSignMember(map_sign_id=m.map_id, journey_sign_id=sid,
+    session.add_all(MapSignMemberRow(map_sign_id=m.map_id, journey_sign_id=sid,
                                   weight=float(weights[m.map_id].get(sid, 1.0)))
                     for m in judged for sid in m.members)
     removed = sorted(old_ids - new_ids)
     for map_id in removed:
         existing[map_id].removed_at = existing[map_id].updated_at = now
     id_of_key = {journey_key(j): j.id for _, j in rows.values()}
-    return FusionSummary(len(signs), created, updated, removed, unchanged,
-                         sorted(id_of_key.get(k, k) for k in fused.biased_journeys))
+    return FusionSummary(n_journey_signs=len(signs), created=created, updated=updated,
+                         removed=removed, unchanged=unchanged,
+                         biased_journeys=sorted(id_of_key.get(k, k) for k in fused.biased_journeys))
 
 
 def _log(what: str, summary: FusionSummary) -> None:

@@ -1,4 +1,4 @@
-"""HTTP routes of the wire contract (base path /api/v1)."""
+"""Routes of journeys (base path /api/v1): upload, list, status, a journey's signs, deletion."""
 
 from __future__ import annotations
 
@@ -7,44 +7,38 @@ import time
 import uuid
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, HTTPException, Path, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
-from sqlalchemy import delete, select
+from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
 
 from app.geojson import feature_collection
 from app.pipeline.bundle import check_bundle
 from app.pipeline.types import BundleError
-from app.service import queries, storage
-from app.service.auth import Principal, require
-from app.service.db import session_scope
-from app.service.models import Journey
-from app.service.schemas import NO_NUL, ErrorOut, JourneyAccepted, JourneyOut, SignCollection
-from app.service.upload import FIELD, receive_bundle
+from app.service import storage
+from app.service.api.schemas import (AUTH_ERRORS, NO_NUL, ErrorOut, JourneyAccepted, JourneyOut,
+                                     SignCollection)
+from app.service.api.upload import FIELD, receive_bundle
+from app.service.auth import Principal
+from app.service.db import crud, queries
+from app.service.db.models import JourneyRow
+from app.service.deps import Admin, Fleet, SessionDep, SettingsDep
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/api/v1")
 
-_AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
-    401: {"model": ErrorOut, "description": "no or unknown API key"},
-    403: {"model": ErrorOut, "description": "the key's role may not make this call"},
-}
 _NOT_YOURS = {404: {"model": ErrorOut, "description": "no such journey among the caller's"}}
 JourneyId = Annotated[str, Path(pattern=NO_NUL)]
 
 
-def _url(request: Request) -> str:
-    return request.app.state.settings.effective_database_url
-
-
-def _journey_out(row: Journey) -> dict[str, Any]:
+def _journey_out(row: JourneyRow) -> dict[str, Any]:
     return JourneyOut.model_validate(row, from_attributes=True).model_dump(mode="json")
 
 
-def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
-    with session_scope(_url(request)) as session:
-        row = session.get(Journey, journey_id)
+def _own_journey(session: Session, journey_id: str, who: Principal) -> JourneyRow:
+    row = session.get(JourneyRow, journey_id)
     # Another fleet's journey answers 404 like a missing one: ids are not disclosed across fleets.
     if row is None or not who.owns(row.owner_key_id):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
@@ -66,19 +60,18 @@ def _own_journey(request: Request, journey_id: str, who: Principal) -> Journey:
                422: {"model": ErrorOut, "description": "the bundle breaks the wire contract"},
                503: {"model": ErrorOut,
                      "description": "the job queue or the bundle store is unreachable"},
-               **_AUTH_ERRORS},
+               **AUTH_ERRORS},
     # The body is parsed as a stream (not by FastAPI), so its schema is declared here for /docs.
     openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
         "schema": {"type": "object", "required": [FIELD], "properties": {FIELD: {
             "type": "string", "format": "binary",
             "description": "the journey bundle (.zip, wire contract section 1)"}}}}}}})
-async def upload_journey(request: Request,
-                         who: Annotated[Principal, Depends(require("fleet"))]) -> JSONResponse:
-    settings = request.app.state.settings
+async def upload_journey(request: Request, who: Fleet, settings: SettingsDep,
+                         session: SessionDep) -> JSONResponse:
     incoming = storage.incoming_path(settings.data_dir)
     received = await receive_bundle(request, incoming, settings.max_upload_mb * 1024 * 1024)
     try:
-        existing = _existing(request, who, received.sha256)
+        existing = _existing(request, session, who, received.sha256)
         if existing is not None:
             return existing
         t0 = time.perf_counter()
@@ -98,15 +91,16 @@ async def upload_journey(request: Request,
     finally:
         incoming.unlink(missing_ok=True)
 
-    row = Journey(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
-                  vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
-                  bundle_sha256=received.sha256, bundle_bytes=received.n_bytes, status="queued",
-                  progress=0.0, n_frames=journey.n_frames, attempts=0)
+    row = JourneyRow(id=str(uuid.uuid4()), owner_key_id=who.key_id, camera_id=journey.camera_id,
+                     vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
+                     bundle_sha256=received.sha256, bundle_bytes=received.n_bytes,
+                     status="queued", progress=0.0, n_frames=journey.n_frames, attempts=0)
     try:
-        with session_scope(_url(request)) as session:
-            session.add(row)
+        session.add(row)
+        session.commit()  # before it is queued: the job reads the row
     except IntegrityError:  # the same bytes were accepted concurrently
-        existing = _existing(request, who, received.sha256)
+        session.rollback()
+        existing = _existing(request, session, who, received.sha256)
         if existing is not None:
             return existing
         raise
@@ -114,7 +108,11 @@ async def upload_journey(request: Request,
         request.app.state.queue.submit(row.id)
     except Exception as exc:
         log.exception("journey %s: could not be queued; upload undone", row.id)
-        _undo(request, row, new_file)
+        crud.delete_upload(session, row.id)
+        session.commit()
+        if new_file:
+            storage.release_bundle(settings.effective_database_url, request.app.state.store,
+                                   row.bundle_sha256)
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
                             "the job queue is unreachable; try again later") from exc
     log.info("journey %s queued: %d frames, camera %s, %d bytes, key %s, validated in %.1f s",
@@ -122,57 +120,63 @@ async def upload_journey(request: Request,
     return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
 
 
-def _existing(request: Request, who: Principal, sha256: str) -> JSONResponse | None:
-    """The answer to a re-upload of bytes this owner uploaded before; a failed journey is requeued."""
-    with session_scope(_url(request)) as session:
-        row = session.scalars(select(Journey).where(Journey.owner_key_id == who.key_id,
-                                                    Journey.bundle_sha256 == sha256)).first()
-        if row is None:
-            return None
-        requeue = row.status == "failed"
-        if requeue:
-            row.status, row.stage, row.progress, row.error, row.attempts = (
-                "queued", None, 0.0, None, 0)
-    if requeue:
+def _existing(request: Request, session: Session, who: Principal, sha256: str
+              ) -> JSONResponse | None:
+    """The answer to a re-upload of bytes this owner uploaded before; a failed journey is requeued.
+    Commits either way (the requeue before it is submitted; a plain read holds no connection while
+    the bundle is checked)."""
+    row = crud.owned_upload(session, who.key_id, sha256)
+    requeued = row is not None and crud.requeue_failed(session, row.id)
+    session.commit()
+    if row is None:
+        return None
+    if requeued:
         request.app.state.queue.submit(row.id)
         log.info("journey %s: re-uploaded after failing; queued again", row.id)
         return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
     return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
 
 
-def _undo(request: Request, row: Journey, new_file: bool) -> None:
-    with session_scope(_url(request)) as session:
-        session.execute(delete(Journey).where(Journey.id == row.id))
-    if new_file:
-        storage.release_bundle(_url(request), request.app.state.store, row.bundle_sha256)
-
-
 @router.get("/journeys", response_model=list[JourneyOut], summary="The caller's journeys",
             description="Newest first; a fleet key sees its own journeys, an admin key all.",
-            responses=_AUTH_ERRORS)
-def list_journeys(request: Request, who: Annotated[Principal, Depends(require("fleet"))],
+            responses=AUTH_ERRORS)
+def list_journeys(who: Fleet, session: SessionDep,
                   limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
-    query = select(Journey).order_by(Journey.created_at.desc()).limit(limit)
+    query = select(JourneyRow).order_by(JourneyRow.created_at.desc()).limit(limit)
     if who.role != "admin":
-        query = query.where(Journey.owner_key_id == who.key_id)
-    with session_scope(_url(request)) as session:
-        return [_journey_out(row) for row in session.scalars(query)]
+        query = query.where(JourneyRow.owner_key_id == who.key_id)
+    return [_journey_out(row) for row in session.scalars(query)]
 
 
 @router.get("/journeys/{journey_id}", response_model=JourneyOut, summary="A journey's status",
-            responses={**_AUTH_ERRORS, **_NOT_YOURS})
-def get_journey(request: Request, journey_id: JourneyId,
-                who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
-    return _journey_out(_own_journey(request, journey_id, who))
+            responses={**AUTH_ERRORS, **_NOT_YOURS})
+def get_journey(journey_id: JourneyId, who: Fleet, session: SessionDep) -> dict[str, Any]:
+    return _journey_out(_own_journey(session, journey_id, who))
 
 
 @router.get("/journeys/{journey_id}/signs", response_model=SignCollection,
             summary="The signs one journey triangulated (GeoJSON)",
             description="Empty until the journey is done. Each feature carries the sign's "
                         "position in every observing frame's camera.",
-            responses={**_AUTH_ERRORS, **_NOT_YOURS})
-def get_journey_signs(request: Request, journey_id: JourneyId,
-                      who: Annotated[Principal, Depends(require("fleet"))]) -> dict[str, Any]:
-    _own_journey(request, journey_id, who)
-    with session_scope(_url(request)) as session:
-        return feature_collection(queries.journey_signs(session, journey_id))
+            responses={**AUTH_ERRORS, **_NOT_YOURS})
+def get_journey_signs(journey_id: JourneyId, who: Fleet, session: SessionDep) -> dict[str, Any]:
+    _own_journey(session, journey_id, who)
+    return feature_collection(queries.journey_signs(session, journey_id))
+
+
+@router.delete("/journeys/{journey_id}", status_code=status.HTTP_204_NO_CONTENT,
+               summary="Delete a journey (admin)",
+               description="Removes the journey, its signs and coverage, and re-fuses the map "
+                           "around it; its stored bundle goes too unless another journey was "
+                           "uploaded with the same bytes. A running journey answers 409.",
+               responses={404: {"model": ErrorOut, "description": "no such journey"},
+                          409: {"model": ErrorOut, "description": "the journey is running"},
+                          **AUTH_ERRORS})
+def delete_journey(request: Request, journey_id: JourneyId, who: Admin,
+                   settings: SettingsDep) -> None:
+    try:
+        found = crud.delete_journey(settings, request.app.state.store, journey_id)
+    except crud.JourneyRunning:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"journey {journey_id} is running") from None
+    if not found:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")

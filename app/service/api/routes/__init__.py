@@ -1,0 +1,1 @@
+"""Routes by resource: ``journeys`` (/journeys...), ``map`` (/signs...), ``tiles`` (/tiles...)."""
