@@ -1,13 +1,15 @@
 """``signmap`` command line: the pipeline locally, the synthetic generator, the service and the
-benchmarks. Service subcommands live in ``app.service.commands`` so the pipeline CLI does not import
-the service stack; ``signmap process`` runs in ``app.process_command`` (its exit codes)."""
+benchmarks. The subcommands run in ``app.commands``: ``signmap process`` in
+``app.commands.process`` (its exit codes), ``signmap synth`` in ``app.commands.synth``. Service
+subcommands live in ``app.service.commands`` so the pipeline CLI does not import the service
+stack."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from app.process_command import EXIT_CODES_HELP, EXIT_USAGE
+from app.commands.process import EXIT_CODES_HELP, EXIT_USAGE
 
 DESCRIPTION = ("Signmap: 3D positions of traffic signs from journeys filmed by cameras nobody "
                "calibrated, with GPS. Process a journey on this machine, render synthetic "
@@ -47,9 +49,9 @@ def _add_process(sub) -> None:
     p.add_argument("--out", default="signs.geojson",
                    help="where to write the signs as GeoJSON (default: %(default)s)")
     p.add_argument("--report", default=None,
-                   help="where to write the JSON report: calibration, timings, uncertainty per "
-                   "sign, rejected tracks and why (default: OUT with the suffix .report.json, "
-                   "e.g. signs.report.json)")
+                   help="where to write the JSON report: calibration, timings, what each stage "
+                   "tried (and why it failed), uncertainty per sign, rejected tracks and why "
+                   "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
     p.add_argument("--calibration", default=None, metavar="CAMERA.json",
                    help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
                    "needed for a journey without a turn to calibrate on")
@@ -124,10 +126,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "process":
-        from app.process_command import run_process
+        from app.commands.process import run_process
         return run_process(args)
     if args.command == "synth":
-        from app.synth.cli import run_synth
+        from app.commands.synth import run_synth
         return run_synth(args)
     return int(args.func(args) or 0)
 

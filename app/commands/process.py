@@ -1,7 +1,7 @@
 """``signmap process BUNDLE.zip``: the whole pipeline locally, no server or database needed, with
 distinct exit codes for bad input and for a journey the pipeline could not process.
 
-The summary it prints and the report it writes are ``app.pipeline.process_cli``'s."""
+The summary it prints and the report it writes are ``app.commands.process_report``'s."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def run_process(args) -> int:
     """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
-    from app.pipeline.process_cli import _progress_printer, report
+    from app.commands.process_report import _progress_printer, report, stage_summary
     from app.pipeline.run import process_journey
     from app.pipeline.types import BundleError, CameraModel, PipelineError
     from app.settings import Settings
@@ -104,6 +104,7 @@ def run_process(args) -> int:
                                      known_camera=known, progress=_progress_printer(),
                                      verbose=args.verbose)
         except PipelineError as exc:
+            stage_summary(exc.report, stream=sys.stderr)
             print(f"signmap process: the journey could not be processed at stage {exc.stage}: "
                   f"{exc.reason}", file=sys.stderr)
             return EXIT_PIPELINE_FAILED
@@ -111,6 +112,7 @@ def run_process(args) -> int:
     out.write_text(json.dumps(feature_collection(journey_sign_features(result.signs)), indent=1))
     report_path = Path(args.report) if args.report else out.with_suffix(".report.json")
     report_path.write_text(json.dumps(report(result, journey.warnings), indent=1))
+    stage_summary(result.report)
     cal = result.calibration.camera
     print(f"calibration ({result.calibration.source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
           f"cx={cal.cx:.1f} cy={cal.cy:.1f} k1={cal.k1:.3f} k2={cal.k2:.3f}")
