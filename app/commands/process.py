@@ -71,9 +71,9 @@ def _calibration(path: str) -> dict[str, float]:
 
 def run_process(args) -> int:
     """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
+    from app.commands.process_report import _progress_printer, report, stage_summary
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
-    from app.commands.process_report import _progress_printer, report, stage_summary
     from app.pipeline.run import process_journey
     from app.pipeline.types import BundleError, CameraModel, PipelineError
     from app.settings import Settings

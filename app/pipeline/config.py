@@ -122,7 +122,7 @@ class PipelineConfig(BaseModel):
     merge_fragments_within_m: float = Field(
         1.0, description="tracks of one class that share no frame and are placed this close "
                          "(horizontally) are one sign whose track broke")
-    # A placed sign's uncertainty (app/pipeline/geometry/uncertainty.py): chosen on the corpus tuning half.
+    # A placed sign's uncertainty (geometry/uncertainty.py): chosen on the corpus tuning half.
     sign_georef_floor_m: float = Field(
         0.05, description="GPS error per horizontal axis that a window alignment cannot average "
                           "out (bias, multipath), added to every sign's covariance")

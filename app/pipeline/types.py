@@ -110,7 +110,7 @@ class Journey:
     # What validation tolerated but the uploader should know (e.g. frames dropped for lack of GPS).
     warnings: list[str] = field(default_factory=list)
     # White-noise sigma (m, per horizontal axis) of the GPS fixes, None when too few to tell
-    # (app.pipeline.geometry.gps_noise).
+    # (geometry.gps_noise).
     gps_noise_m: float | None = None
 
     @property
@@ -154,7 +154,7 @@ class SignObservation:
 
 @dataclass(frozen=True)
 class SignUncertainty:
-    """Where a sign's ``cov_enu`` comes from (app.pipeline.geometry.uncertainty): the triangulation's own
+    """Where a sign's ``cov_enu`` comes from (``geometry.uncertainty``): the triangulation's own
     (3, 3) m^2 and the georeferencing terms (``GeorefTerms``) the knobs weighed."""
 
     cov_triangulation_enu: np.ndarray
@@ -174,8 +174,8 @@ class Sign:
     std_m: float  # 1-sigma position uncertainty (sqrt of cov_enu's largest eigenvalue)
     reprojection_rms_px: float
     observations: list[SignObservation]
-    facing_deg: float | None = None  # compass bearing of the face (app.pipeline.geometry.facing)
-    # (3, 3) m^2 in the journey's ENU frame, triangulation + georeferencing (app.pipeline.geometry.uncertainty)
+    facing_deg: float | None = None  # compass bearing of the face (geometry.facing)
+    # (3, 3) m^2 in the journey's ENU frame, triangulation + georeferencing (geometry.uncertainty)
     cov_enu: np.ndarray | None = None
     r95_h_m: float | None = None  # horizontal radius holding the true position with 95 % probability
     uncertainty: SignUncertainty | None = None

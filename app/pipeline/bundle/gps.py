@@ -102,7 +102,7 @@ class FrameGps:
 
     @property
     def noise_m(self) -> float | None:
-        """White-noise sigma of the fixes (app.pipeline.geometry.gps_noise); computed on demand, so the
+        """White-noise sigma of the fixes (geometry.gps_noise); computed on demand, so the
         API's upload validation, which never asks, does not pay for it."""
         if self.fixes is None:
             return None

@@ -1,13 +1,14 @@
 """COLMAP (pycolmap) structure-from-motion on windows of a journey's frames.
 
 Used by self-calibration (intrinsics free) and by ego-motion (intrinsics fixed). Features are
-extracted and matched once per journey into one database; each window is then mapped separately
-(``IncrementalPipelineOptions.image_names``) so cost grows with the number of windows, not with the
-square of the journey's length.
+extracted and matched once per stage into one database (``stage``); each window is then mapped
+separately (``IncrementalPipelineOptions.image_names``) so cost grows with the number of windows,
+not with the square of the journey's length.
 
 All COLMAP work runs in a spawned child process: fatal COLMAP errors abort the process (glog
-``CHECK``), and that must fail the journey with a reason, never kill a worker. This is also the only
-module that knows COLMAP's pixel convention (pixel centres at +0.5) and converts at the boundary.
+``CHECK``), and that must fail the journey with a reason, never kill a worker. Every COLMAP option
+comes from ``presets``. This is also the only module that knows COLMAP's pixel convention (pixel
+centres at +0.5) and converts at the boundary.
 """
 
 from __future__ import annotations
