@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from app.pipeline.bundle import check_bundle
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.settings import Settings
 from bench.tables import md_table
 

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from bench.evaluate import calibration_errors_pct
 
 

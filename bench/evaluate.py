@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.pipeline.facing import angle_between_deg
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.facing import angle_between_deg
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import JourneyResult
 
 CALIB_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2")

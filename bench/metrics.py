@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from app.pipeline.alignment import umeyama
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.similarity import umeyama
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import Calibration, JourneyResult
 from bench.evaluate import (calibration_errors_pct, match_signs, sign_errors, truth_frame,
                             truth_id)

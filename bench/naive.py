@@ -16,34 +16,35 @@ from pathlib import Path
 
 import numpy as np
 
-from app.pipeline import geodesy
-from app.pipeline.alignment import umeyama
-from app.pipeline.colmap_sfm import COLMAP_PIXEL_OFFSET
+from app.pipeline.colmap.sfm import camera_model, registered_poses
 from app.pipeline.config import PipelineConfig
-from app.pipeline.ego_motion import sign_tracks
-from app.pipeline.triangulation import TriangulationError, triangulate, undistort_pixels
-from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
-
-
-def _camera(cam) -> CameraModel:
-    """COLMAP SIMPLE_RADIAL (f, cx, cy, k) -> CameraModel in OpenCV pixels."""
-    f, cx, cy, k = np.asarray(cam.params, dtype=float)[:4]
-    return CameraModel(int(cam.width), int(cam.height), f, f, cx - COLMAP_PIXEL_OFFSET,
-                       cy - COLMAP_PIXEL_OFFSET, k, 0.0)
+from app.pipeline.geometry import geodesy
+from app.pipeline.geometry.similarity import umeyama
+from app.pipeline.geometry.triangulation import (
+    TriangulationError,
+    triangulate,
+    undistort_pixels,
+)
+from app.pipeline.steps.sign_tracks import group_detections
+from app.pipeline.types import (
+    Calibration,
+    CameraModel,
+    Journey,
+    JourneyResult,
+    PipelineError,
+    ProgressFn,
+    RejectedSign,
+    Sign,
+    SignObservation,
+    no_progress,
+)
 
 
 def _poses(rec, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """(K,) journey frame indices of the registered images and their (K,4,4) T_model_cam."""
     index = {n: i for i, n in enumerate(names)}
-    images = sorted((im for im in rec.images.values() if im.has_pose and im.name in index),
-                    key=lambda im: index[im.name])
-    T_model_cam = np.zeros((len(images), 4, 4))
-    for k, im in enumerate(images):
-        T_cam_model = np.eye(4)
-        T_cam_model[:3, :] = im.cam_from_world().matrix()
-        T_model_cam[k] = np.linalg.inv(T_cam_model)
-    return np.array([index[im.name] for im in images], dtype=int), T_model_cam
+    registered, T_model_cam = registered_poses(rec, names)
+    return np.array([index[n] for n in registered], dtype=int), T_model_cam
 
 
 def naive_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
@@ -75,7 +76,7 @@ def naive_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     if not models:
         raise PipelineError("naive", "COLMAP reconstructed no model")
     rec = max(models.values(), key=lambda r: r.num_reg_images())
-    camera = _camera(next(iter(rec.cameras.values())))
+    camera = camera_model(next(iter(rec.cameras.values())))
     frame_idx, T_model_cam = _poses(rec, names)
 
     origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0],
@@ -103,7 +104,7 @@ def _triangulate(journey: Journey, frame_idx: np.ndarray, T_world_cam: np.ndarra
     row = {int(i): k for k, i in enumerate(frame_idx)}
     signs: list[Sign] = []
     rejected: list[RejectedSign] = []
-    for track in sign_tracks(journey.detections, journey.frame_ids):
+    for track in group_detections(journey.detections, journey.frame_ids):
         if len(track.frame_idx) < config.min_track_frames:
             continue
         keep = np.array([int(i) in row for i in track.frame_idx], dtype=bool)

@@ -3,7 +3,7 @@
 A full ``signmap bench corpus`` run records, per placed sign, its horizontal error against the
 truth and the terms of its covariance before the knobs weigh them (``bench.evaluate``): the
 triangulation's (2, 2) block, the averaged GPS noise, the floor weight and the alignment residual
-(``app.pipeline.uncertainty.GeorefTerms``). That is enough to recompute every sign's 95 % radius
+(``app.pipeline.geometry.uncertainty.GeorefTerms``). That is enough to recompute every sign's 95 % radius
 for any knob values without running the pipeline again.
 
 ``fit`` picks ``sign_georef_floor_m`` and ``sign_georef_bias_ratio`` (the gain on the averaged
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
 from bench.corpus_report import GPS_KINDS, gps_kind
 
 TARGET = 0.95

@@ -11,7 +11,7 @@ from datetime import datetime, timedelta, timezone
 
 import numpy as np
 
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import (Calibration, CameraModel, JourneyResult, Sign, SignObservation)
 from app.service.jobs import fusion, state
 from app.service.db.session import session_scope

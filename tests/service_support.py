@@ -54,7 +54,7 @@ def bf_zip(files: dict | None = None) -> bytes:
 
 def signs_enu(features: list[dict], truth: dict) -> dict[str, np.ndarray]:
     """Each feature's position (m) in the truth's ENU frame, keyed by track id."""
-    from app.pipeline.geodesy import frame_at
+    from app.pipeline.geometry.geodesy import frame_at
 
     origin = truth["origin"]
     frame = frame_at(origin["lat"], origin["lon"], origin["alt_m"])

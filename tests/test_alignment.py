@@ -3,7 +3,7 @@ import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.alignment import Sim3, align_trajectory, umeyama
+from app.pipeline.geometry.similarity import Sim3, align_trajectory, umeyama
 
 
 def _angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:

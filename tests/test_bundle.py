@@ -11,9 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-from app.pipeline.bundle import BundleLimits, check_bundle, read_bundle
-from app.pipeline.gps import GpsFixes, interpolate_to_frames
-from app.pipeline.gps_exif import ExifFix, gps_from_exif
+from app.pipeline.bundle import check_bundle, read_bundle
+from app.pipeline.config import BundleLimits
+from app.pipeline.bundle.gps import GpsFixes, interpolate_to_frames
+from app.pipeline.bundle.gps_exif import ExifFix, gps_from_exif
 from app.pipeline.types import BundleError, CameraModel
 from tests import bundle_factory as bf
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.calibration import judge_window
-from app.pipeline.colmap_sfm import WindowResult
+from app.pipeline.steps.calibrate import judge_window
+from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
 
@@ -50,8 +50,8 @@ def _track(step_m: float, n: int, stop_at: int | None = None, stop_frames: int =
 
 
 def test_candidate_windows_span_the_turn_first_then_shift_and_stay_inside_the_journey():
-    from app.pipeline.calibration import candidate_windows
-    from app.pipeline.turns import TurnWindow
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import TurnWindow
 
     cfg = PipelineConfig()
     s_m = _track(0.8, 100)
@@ -69,8 +69,8 @@ def test_candidate_windows_span_the_turn_first_then_shift_and_stay_inside_the_jo
 
 @pytest.mark.parametrize("step_m", [0.2, 0.8, 2.4])
 def test_candidate_windows_span_the_same_road_whatever_the_frame_rate_and_speed(step_m):
-    from app.pipeline.calibration import candidate_windows
-    from app.pipeline.turns import TurnWindow
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import TurnWindow
 
     cfg = PipelineConfig()
     n = int(120 / step_m)
@@ -82,8 +82,8 @@ def test_candidate_windows_span_the_same_road_whatever_the_frame_rate_and_speed(
 
 
 def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
-    from app.pipeline.calibration import candidate_windows
-    from app.pipeline.turns import TurnWindow
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import TurnWindow
 
     cfg = PipelineConfig()
     s_m = _track(0.5, 200, stop_at=95, stop_frames=40)
@@ -99,7 +99,7 @@ def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
 
 def _search(results: list[WindowResult]):
     """Run the candidate search over made-up windows; returns (calibration or error, windows tried)."""
-    from app.pipeline.calibration import CalibrationWindow, self_calibrate
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
     from app.pipeline.types import PipelineError
 
     windows = [CalibrationWindow(np.arange(30) + 10 * k, 40) for k in range(len(results))]
@@ -110,9 +110,8 @@ def _search(results: list[WindowResult]):
         tried.append(k)
         return results[k]
 
-    names = [f"{i:06d}.png" for i in range(200)]
     try:
-        out = self_calibrate(windows, names, PipelineConfig(), map_window, width=1242, height=375)
+        out = self_calibrate(windows, PipelineConfig(), map_window, width=1242, height=375)
     except PipelineError as exc:
         out = exc
     return out, tried

@@ -24,7 +24,7 @@ from tests.conftest import REPO, CeleryWorker, Stack, make_settings, sqlite_stac
 # Spawns the COLMAP pool exactly as run_sfm does, busies its processes and prints their pids.
 PARENT = """
 import json, multiprocessing.resource_tracker as rt, sys, time
-from app.pipeline.colmap_sfm import colmap_pool
+from app.pipeline.colmap.sfm import colmap_pool
 pool = colmap_pool(2)
 futures = [pool.submit(time.sleep, 600) for _ in range(2)]
 while len(pool._processes) < 2 or rt._resource_tracker._pid is None:

@@ -5,29 +5,29 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.pipeline import ego_motion
-from app.pipeline.place_signs import PlacedPass, combine, merge_fragments
-from app.pipeline.uncertainty import GeorefTerms
-from app.pipeline.triangulation import TriangulatedPoint
+from app.pipeline.steps import ego_motion, sign_tracks
+from app.pipeline.steps.place_signs import PlacedPass, combine, merge_fragments
+from app.pipeline.geometry.uncertainty import GeorefTerms
+from app.pipeline.geometry.triangulation import TriangulatedPoint
 from app.pipeline.types import CameraModel, Detection
 
 CAMERA = CameraModel(1242, 375, 959.0, 959.0, 621.0, 187.0, 0.0, 0.0)
 
 
-def _track(frames, track_id="7") -> ego_motion.SignTrack:
+def _track(frames, track_id="7") -> sign_tracks.SignTrack:
     frames = np.asarray(frames, dtype=int)
     px = np.column_stack([frames * 1.0, frames * 2.0])
-    return ego_motion.SignTrack(track_id, "stop", frames, px)
+    return sign_tracks.SignTrack(track_id, "stop", frames, px)
 
 
 def test_a_continuous_track_is_one_pass():
     track = _track(range(10, 40))
-    assert ego_motion.split_passes(track, max_gap=30, max_frames=50) == [track]
+    assert sign_tracks.split_passes(track, max_gap=30, max_frames=50) == [track]
 
 
 def test_a_sign_seen_again_after_a_loop_becomes_two_passes():
     track = _track([0, 1, 2, 3, 4, 273, 274, 280, 299])
-    parts = ego_motion.split_passes(track, max_gap=30, max_frames=50)
+    parts = sign_tracks.split_passes(track, max_gap=30, max_frames=50)
     assert [p.frame_idx.tolist() for p in parts] == [[0, 1, 2, 3, 4], [273, 274, 280, 299]]
     assert [p.part for p in parts] == [0, 1]
     assert all(p.track_id == "7" and p.cls == "stop" for p in parts)
@@ -38,12 +38,12 @@ def test_a_sign_seen_again_after_a_loop_becomes_two_passes():
 
 def test_short_gaps_do_not_split_a_pass():
     track = _track([40, 41, 51, 68, 80])  # missed detections, 17 frames at most
-    assert len(ego_motion.split_passes(track, max_gap=30, max_frames=50)) == 1
+    assert len(sign_tracks.split_passes(track, max_gap=30, max_frames=50)) == 1
 
 
 def test_a_long_pass_is_cut_into_parts_no_longer_than_max_frames():
     track = _track(range(0, 130))
-    parts = ego_motion.split_passes(track, max_gap=30, max_frames=50)
+    parts = sign_tracks.split_passes(track, max_gap=30, max_frames=50)
     assert [p.span for p in parts] == [(0, 50), (50, 100), (100, 130)]
     assert np.array_equal(np.concatenate([p.frame_idx for p in parts]), track.frame_idx)
 
@@ -57,7 +57,7 @@ def test_windows_of_a_looped_sign_stay_short(chaining):
     splitting, the looped sign alone would need the whole journey mapped."""
     tracks = [_track([0, 1, 2, 3, 275, 280, 290, 299], "0"), _track(range(30, 60), "1"),
               _track(range(120, 150), "2"), _track(range(200, 240), "3")]
-    parts = [p for t in tracks for p in ego_motion.split_passes(t, max_gap=30, max_frames=50)]
+    parts = [p for t in tracks for p in sign_tracks.split_passes(t, max_gap=30, max_frames=50)]
     windows = ego_motion.plan_windows(parts, 300, margin=15, max_frames=80, **chaining)
     _check_windows(windows, parts, 300, margin=15, max_frames=80, step=chaining.get("step", 1))
 
@@ -94,7 +94,7 @@ def test_a_stretch_longer_than_max_frames_becomes_a_chain_of_equal_windows():
 
 
 def test_a_long_pass_becomes_a_chain_of_overlapping_windows():
-    parts = ego_motion.split_passes(_track(range(10, 250)), max_gap=30, max_frames=50)
+    parts = sign_tracks.split_passes(_track(range(10, 250)), max_gap=30, max_frames=50)
     windows = ego_motion.plan_windows(parts, 300, margin=15, max_frames=80, **CHAINED)
     _check_windows(windows, parts, 300, margin=15, max_frames=80, step=2)
     assert len(windows) == 4  # 0-265 in windows of at most 80 sharing 16: (265 - 16) / 64
@@ -127,8 +127,8 @@ def test_without_chaining_windows_only_cover_the_tracks():
 def test_sign_tracks_keeps_track_ids_through_splitting():
     frames = [f"{i:06d}" for i in range(300)]
     dets = [Detection(frames[i], "5", "yield", 10.0, 10.0, 20.0, 20.0) for i in (0, 1, 2, 280, 281)]
-    (track,) = ego_motion.sign_tracks(dets, frames)
-    parts = ego_motion.split_passes(track, max_gap=30, max_frames=50)
+    (track,) = sign_tracks.group_detections(dets, frames)
+    parts = sign_tracks.split_passes(track, max_gap=30, max_frames=50)
     assert [p.span for p in parts] == [(0, 3), (280, 282)]
 
 

@@ -1,11 +1,11 @@
-"""A sign's facing from the cameras that saw it (app.pipeline.facing)."""
+"""A sign's facing from the cameras that saw it (app.pipeline.geometry.facing)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from app.pipeline.facing import angle_between_deg, bearing_deg, facing_deg
+from app.pipeline.geometry.facing import angle_between_deg, bearing_deg, facing_deg
 
 
 def _approach(heading_deg: float, side_m: float, dists_m) -> tuple[np.ndarray, np.ndarray]:
@@ -47,7 +47,7 @@ def test_bearings_and_their_difference():
 
 
 def test_fused_facing_is_the_weighted_circular_mean():
-    from app.pipeline.facing import mean_facing_deg
+    from app.pipeline.geometry.facing import mean_facing_deg
 
     assert mean_facing_deg([350.0, 10.0], [1.0, 1.0]) == pytest.approx(0.0, abs=1e-9) or \
         mean_facing_deg([350.0, 10.0], [1.0, 1.0]) == pytest.approx(360.0)

@@ -9,7 +9,7 @@ import numpy as np
 
 from app.fusion import (FusionConfig, JourneyCoverage, JourneySign, detect_changes,
                         frames_in_view, fuse_map)
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel
 
 ORIGIN = (49.0110123, 8.4183456, 112.3)

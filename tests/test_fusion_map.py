@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.fusion import FusionConfig, JourneySign, fuse_map
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 
 ORIGIN = (49.0110123, 8.4183456, 112.3)
 FRAME = frame_at(*ORIGIN)

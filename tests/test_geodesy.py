@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
-from app.pipeline.geodesy import LocalFrame, frame_at
+from app.pipeline.geometry.geodesy import LocalFrame, frame_at
 
 KARLSRUHE = (49.0110123, 8.4183456, 112.3)
 GEOD = Geod(ellps="WGS84")

@@ -1,5 +1,5 @@
 """Frames outside the GPS fixes' time span: extrapolated when a little outside, dropped from the
-journey's ends when further, the journey refused only when too little is left (app.pipeline.gps)."""
+journey's ends when further, the journey refused only when too little is left (app.pipeline.bundle.gps)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from app.pipeline.bundle import read_bundle
-from app.pipeline.gps import GpsFixes, extrapolation_bound_s, gps_from_gpx, interpolate_to_frames
-from app.pipeline.process_cli import report
+from app.pipeline.bundle.gps import GpsFixes, extrapolation_bound_s, gps_from_gpx, interpolate_to_frames
+from app.commands.process_report import report
 from app.pipeline.types import BundleError, Calibration, CameraModel, JourneyResult
 from tests import bundle_factory as bf
 

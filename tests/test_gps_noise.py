@@ -1,4 +1,4 @@
-"""The GPS white-noise estimate (app/pipeline/gps_noise.py) and the reconstruction check it feeds
+"""The GPS white-noise estimate (app/pipeline/geometry/gps_noise.py) and the reconstruction check it feeds
 (app/pipeline/place_signs.check_reconstruction)."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geodesy import frame_at
-from app.pipeline.gps_noise import white_noise_m
-from app.pipeline.place_signs import check_reconstruction
-from app.pipeline.triangulation import TriangulationError
+from app.pipeline.geometry.geodesy import frame_at
+from app.pipeline.geometry.gps_noise import white_noise_m
+from app.pipeline.steps.place_signs import check_reconstruction
+from app.pipeline.geometry.triangulation import TriangulationError
 
 
 def _drive(rate_hz: float, sigma_m: float, seed: int, bias_m: float = 0.0):
@@ -51,7 +51,7 @@ def test_a_reconstruction_far_off_its_gps_is_rejected_with_the_reason():
 
 
 def test_a_journeys_gps_csv_carries_its_noise_to_the_frames():
-    from app.pipeline.gps import gps_from_csv
+    from app.pipeline.bundle.gps import gps_from_csv
 
     t, lat, lon = _drive(2.0, 0.5, 1)
     ids = [f"{i:06d}" for i in range(len(t))]

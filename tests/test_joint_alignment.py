@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.alignment import Sim3
-from app.pipeline.ego_motion import SignTrack, WindowPoses
-from app.pipeline.georeference import JointSigmas, align_window, align_windows, track_poses
+from app.pipeline.geometry.similarity import Sim3
+from app.pipeline.steps.ego_motion import WindowPoses
+from app.pipeline.steps.sign_tracks import SignTrack
+from app.pipeline.steps.align import JointSigmas, align_window, align_windows, track_poses
 from app.synth.trajectory import noisy_gps
 
 FPS = 10.0

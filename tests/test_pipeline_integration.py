@@ -8,8 +8,8 @@ import pytest
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
-from app.pipeline.facing import angle_between_deg
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.facing import angle_between_deg
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.run import process_journey
 from app.pipeline.types import CameraModel, PipelineError
 

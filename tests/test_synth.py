@@ -14,7 +14,7 @@ import numpy as np
 import piexif
 import pytest
 
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel
 from app.synth.journey import KITTI_LIKE_CAMERA, SynthConfig, generate, write_bundle
 from app.synth.render import camera_rays, first_hits, render_frame

@@ -1,13 +1,14 @@
 """KLT tracks for ego-motion (``track_features``) and the COLMAP pairs made from them
-(``ego_motion.tracked_features``): known image motions, no COLMAP."""
+(``klt_features.klt_correspondences``): known image motions, no COLMAP."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from app.pipeline import ego_motion
-from app.pipeline.track_features import KltOptions, track_features
+from app.pipeline.steps import ego_motion
+from app.pipeline.colmap import klt_features
+from app.pipeline.colmap.klt_features import KltOptions, track_features
 from app.pipeline.types import CameraModel
 
 CAMERA = CameraModel(480, 240, 400.0, 400.0, 240.0, 120.0, -0.1, 0.0)
@@ -66,7 +67,7 @@ def test_pairs_reach_overlap_frames_and_never_cross_a_gap():
     frame_idx = np.array([0, 2, 4, 6, 20, 22, 24])  # the gap 6 -> 20 is more than the step
     images = [_shifted(base, 1.5 * i, 0.0) for i in frame_idx]
     names = [f"{i:06d}.png" for i in range(30)]
-    feats = ego_motion.tracked_features(frame_idx, images, names, CAMERA, step=2, overlap=2)
+    feats = klt_features.klt_correspondences(frame_idx, images, names, CAMERA, step=2, overlap=2)
     assert feats.image_names == [names[i] for i in frame_idx]
     assert sorted(feats.matches) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (4, 5), (4, 6),
                                      (5, 6)]

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from app.pipeline.tracks import assign_tracks, sort_detections
+from app.pipeline.bundle.associate import assign_tracks, sort_detections
 from app.pipeline.types import Detection
 
 FRAMES = [f"{i:06d}" for i in range(20)]

@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.pipeline.triangulation import (TriangulatedPoint, TriangulationError, midpoint,
+from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError, midpoint,
                                         triangulate, undistort_pixels)
 from app.pipeline.types import CameraModel
 

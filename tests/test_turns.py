@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.pipeline.turns import TurnWindow, find_turns, total_rotation_deg
+from app.pipeline.steps.turns import TurnWindow, find_turns, total_rotation_deg
 
 
 def _leg(start, heading_deg: float, length_m: float, step_m: float = 1.0) -> np.ndarray:
@@ -163,7 +163,7 @@ def _phone_gps(xy_true: np.ndarray, sigma_m: float, seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_smoothing_keeps_phone_gps_noise_from_making_or_hiding_turns(seed):
-    from app.pipeline.turns import smooth_track
+    from app.pipeline.steps.turns import smooth_track
 
     t_s = np.arange(300) / 10.0
     straight = np.column_stack([8.0 * t_s, np.zeros_like(t_s)])

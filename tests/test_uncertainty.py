@@ -1,11 +1,11 @@
-"""A sign's covariance and its 95 % horizontal radius (app.pipeline.uncertainty)."""
+"""A sign's covariance and its 95 % horizontal radius (app.pipeline.geometry.uncertainty)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from app.pipeline.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
 
 
 def test_radius_holds_95_percent_of_gaussian_samples():

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.pipeline.uncertainty import GeorefTerms
+from app.pipeline.geometry.uncertainty import GeorefTerms
 from bench.uncertainty_fit import Knobs, SignTerms, coverage, fit, sign_terms
 
 

@@ -109,7 +109,7 @@ def keys_create(args: argparse.Namespace) -> int:
 
 
 def add_parsers(sub) -> None:
-    from app.cli import show_help  # app.cli imports this module only inside build_parser
+    from app.commands.usage import show_help
 
     p = sub.add_parser("serve", help="run the HTTP API (and, without a broker, the jobs too)",
                        description="Runs the HTTP API. With nothing configured it keeps its data "

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from app.fusion.config import FusionConfig
 from app.fusion.types import JourneyCoverage, MapSign
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel
 
 

@@ -44,7 +44,7 @@ from app.fusion.bias import estimate_journey_biases
 from app.fusion.config import FusionConfig
 from app.fusion.local import LocalSigns, to_local_signs
 from app.fusion.types import FusionResult, JourneyBias, JourneySign, MapSign
-from app.pipeline.facing import mean_facing_deg
+from app.pipeline.geometry.facing import mean_facing_deg
 
 
 def _corrected(local: LocalSigns, biases: dict[str, JourneyBias],

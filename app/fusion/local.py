@@ -13,7 +13,7 @@ import numpy as np
 
 from app.fusion.config import FusionConfig
 from app.fusion.types import JourneySign
-from app.pipeline.geodesy import LocalFrame, frame_at
+from app.pipeline.geometry.geodesy import LocalFrame, frame_at
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ class JourneySign:
     alt_m: float | None
     cov_enu: np.ndarray  # (3, 3) m^2, east/north/up
     captured_at: float  # unix seconds when the journey was recorded
-    facing_deg: float | None = None  # compass bearing of its face (app.pipeline.facing)
+    facing_deg: float | None = None  # compass bearing of its face (app.pipeline.geometry.facing)
 
 
 @dataclass(eq=False)

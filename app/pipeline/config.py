@@ -82,7 +82,7 @@ class PipelineConfig(BaseModel):
         16, description="frames consecutive windows of a stretch share (0: no chaining)")
     ego_bridge_gap_frames: int = Field(
         40, description="stretches near signs at most this many frames apart are joined")
-    # "klt": Lucas-Kanade tracks through the mapped frames (``track_features``), verified and
+    # "klt": Lucas-Kanade tracks through the mapped frames (``colmap.klt_features``), verified and
     # mapped by COLMAP; "sift": COLMAP's SIFT extraction and sequential matching, as calibration.
     ego_front_end: Literal["klt", "sift"] = Field(
         "klt", description="how ego-motion finds correspondences between frames")
@@ -122,7 +122,7 @@ class PipelineConfig(BaseModel):
     merge_fragments_within_m: float = Field(
         1.0, description="tracks of one class that share no frame and are placed this close "
                          "(horizontally) are one sign whose track broke")
-    # A placed sign's uncertainty (app/pipeline/uncertainty.py): chosen on the corpus tuning half.
+    # A placed sign's uncertainty (geometry/uncertainty.py): chosen on the corpus tuning half.
     sign_georef_floor_m: float = Field(
         0.05, description="GPS error per horizontal axis that a window alignment cannot average "
                           "out (bias, multipath), added to every sign's covariance")

@@ -1,8 +1,10 @@
 """The journey pipeline end to end: one validated journey in, triangulated signs out.
 
-Stages (each its own module): geodesy -> turns -> features (COLMAP) -> calibrate -> ego-motion ->
-align (georeference) -> triangulate. Progress is reported after each stage with the overall
-fraction done, weighted by the stages' typical cost.
+Stages (``steps``, one module each): turns (and the plan made from them, ``steps.plan``) ->
+calibrate -> ego_motion -> align -> triangulate (``steps.place_signs``). This module only
+orchestrates: it times the stages, reports progress as the fraction of the journey's expected
+work done (weighted once the plan says how many images each stage maps) and collects one
+``StageReport`` per stage that ran.
 """
 
 from __future__ import annotations
@@ -11,16 +13,27 @@ import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from app.pipeline import calibration, colmap_sfm, ego_motion, geodesy, georeference, turns
+from app.pipeline.colmap.sfm import WindowRequest, WindowResult
+from app.pipeline.colmap.stage import StageSfm
 from app.pipeline.config import PipelineConfig
-from app.pipeline.sfm_stage import StageSfm
-from app.pipeline.place_signs import place_signs
-from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, no_progress)
+from app.pipeline.geometry import geodesy
+from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
+from app.pipeline.steps.calibrate import CalibrationWindow
+from app.pipeline.types import (
+    Calibration,
+    CameraModel,
+    Journey,
+    JourneyResult,
+    PipelineError,
+    ProgressFn,
+    StageReport,
+    no_progress,
+)
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +58,12 @@ class _Clock:
         self.progress(name, self.done, message)
         t0 = time.perf_counter()
         yield
-        self.timings_s[name] = round(time.perf_counter() - t0, 3)
+        self.finished(name, time.perf_counter() - t0, message)
+
+    def finished(self, name: str, seconds: float, message: str = "") -> None:
+        """Stage ``name`` took ``seconds`` (also for the planning stage, timed before the clock
+        existed because its weights come from the plan)."""
+        self.timings_s[name] = round(seconds, 3)
         self.done = min(1.0, self.done + self.weights.get(name, 0.0))
         log.info("stage %s done in %.1f s %s", name, self.timings_s[name], message)
 
@@ -63,15 +81,45 @@ def _stage_weights(n_calib_images: int, n_ego_images: int) -> dict[str, float]:
     return {**OTHER_STAGES, **{k: rest * v / total for k, v in costs.items()}}
 
 
+@dataclass
+class _Entry:
+    """The report of the running stage, filled in as it goes."""
+
+    summary: str = ""
+    details: list[str] = field(default_factory=list)
+
+
+class _Journal:
+    """One StageReport per stage that ran, in order; a PipelineError leaving a stage carries them
+    all, the failing stage's last."""
+
+    def __init__(self) -> None:
+        self.reports: list[StageReport] = []
+
+    @contextmanager
+    def stage(self, name: str):
+        entry = _Entry()
+        try:
+            yield entry
+        except PipelineError as exc:
+            self.reports.append(StageReport(name, f"failed: {exc.reason}", tuple(entry.details)))
+            exc.report = list(self.reports)
+            raise
+        self.reports.append(StageReport(name, entry.summary, tuple(entry.details)))
+
+    def add(self, report: StageReport) -> None:
+        self.reports.append(report)
+
+
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                     known_camera: CameraModel | None = None, progress: ProgressFn = no_progress,
                     verbose: bool = False) -> JourneyResult:
     """Run every stage on ``journey``. ``known_camera``: an earlier calibration of this camera_id,
-    used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason."""
-    clock = _Clock(progress, OTHER_STAGES)
+    used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason
+    and the reports of the stages that ran (``PipelineError.report``)."""
     workdir.mkdir(parents=True, exist_ok=True)
     names = [f.path.name for f in journey.frames]
-    n = len(journey.frames)
+    journal = _Journal()
 
     origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0],
                               journey.alt_m[0] if journey.has_altitude else None,
@@ -79,93 +127,88 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg,
                               journey.alt_m if journey.has_altitude else None)
 
-    with clock.stage("turns"):
-        xy_track = turns.smooth_track(xyz_gps[:, :2], np.array([f.timestamp_s for f in
-                                                                journey.frames]),
-                                      config.turn_smoothing_s)
-        turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
-                                        min_angle_deg=config.turn_min_angle_deg,
-                                        window_m=config.turn_window_m)
-        s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
-        calib_windows = calibration.candidate_windows(turn_windows, s_m, config)
-        if known_camera is not None and config.reuse_known_calibration:
-            calib_windows = []
-        # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
-        margin = config.sign_window_margin_frames
-        tracks = [p for t in ego_motion.sign_tracks(journey.detections, journey.frame_ids)
-                  for p in ego_motion.split_passes(
-                      t, max_gap=2 * margin,
-                      max_frames=max(1, config.ego_max_frames_per_window - 2 * margin))
-                  if len(p.frame_idx) >= config.min_track_frames]
-        ego_windows = ego_motion.plan_windows(tracks, n, margin=config.sign_window_margin_frames,
-                                              max_frames=config.ego_max_frames_per_window,
-                                              step=config.ego_frame_step,
-                                              overlap=config.ego_window_overlap_frames,
-                                              bridge_gap=config.ego_bridge_gap_frames)
+    progress("turns", 0.0, "")
+    t0 = time.perf_counter()
+    with journal.stage("turns") as entry:
+        the_plan = plan.plan_journey(journey, xyz_gps, config, known_camera)
+        planned = plan.report(the_plan, config)
+        entry.summary, entry.details = planned.summary, list(planned.details)
+    clock = _Clock(progress, _stage_weights(config.calib_images * bool(the_plan.calib_windows),
+                                            len(the_plan.ego_frames)))
+    clock.finished("turns", time.perf_counter() - t0)
+    tracks, ego_windows = the_plan.tracks, the_plan.ego_windows
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
-             n, len(turn_windows), len(tracks), len(ego_windows))
-    off_grid = ego_motion.off_grid_frames(tracks, config.ego_frame_step, config.min_track_frames)
-    clock.weights = _stage_weights(
-        config.calib_images * bool(calib_windows),
-        len(ego_motion.mapped_frames(ego_windows, config.ego_frame_step, off_grid)))
-    if not calib_windows and known_camera is None:
-        raise calibration.no_turn_error(config)
+             len(journey.frames), len(the_plan.turns), len(tracks), len(ego_windows))
 
-    def sfm_stage(name: str, windows, step: int, front_end: str, **extra) -> StageSfm:
-        return StageSfm(workdir / f"sfm_{name}", journey, windows, step, front_end, config,
-                        xyz_gps, verbose, **extra)
-
-    def calibrate_window(window: calibration.CalibrationWindow,
-                         request: colmap_sfm.WindowRequest) -> colmap_sfm.WindowResult:
+    def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
         # the first candidate usually succeeds, and the others' features would be wasted.
         step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
-        stage = sfm_stage(f"calibrate_{window.frame_idx[0]}_{window.frame_idx[-1]}", [], step,
-                          config.calib_front_end, frames=window.frame_idx)
+        stage = StageSfm("calibrate",
+                         workdir / f"sfm_calibrate_{window.frame_idx[0]}_{window.frame_idx[-1]}",
+                         journey, window.frame_idx, step=step, front_end=config.calib_front_end,
+                         config=config, xyz_gps=xyz_gps, verbose=verbose)
+        request = WindowRequest([names[i] for i in window.frame_idx], start, calibrate=True)
         return stage.run([request], None)[0]
 
-    def on_candidate(k: int, total: int, window: calibration.CalibrationWindow) -> None:
+    def on_candidate(k: int, total: int, window: CalibrationWindow) -> None:
         # Most journeys stop at the first candidate: each later one halves what is left.
         clock.within("calibrate", 1.0 - 0.5**k,
                      f"candidate window {k + 1} of at most {total} ({window.label})")
 
-    ego_sfm = sfm_stage("ego", ego_windows, config.ego_frame_step, config.ego_front_end,
-                        extra=off_grid)
+    ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
+                       step=config.ego_frame_step, front_end=config.ego_front_end, config=config,
+                       xyz_gps=xyz_gps, verbose=verbose)
     calib: Calibration
-    with ThreadPoolExecutor(max_workers=1) as background:
-        if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
-            background.submit(ego_sfm.correspondences)
-        with clock.stage("calibrate", f"{len(calib_windows)} candidate windows"):
-            calib = _calibrate(journey, calib_windows, names, config, calibrate_window,
-                               on_candidate, known_camera)
+    with journal.stage("calibrate") as entry:
+        if not the_plan.calib_windows and known_camera is None:
+            raise calibrate.no_turn_error(config)
+        with ThreadPoolExecutor(max_workers=1) as background:
+            if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
+                background.submit(ego_sfm.correspondences)
+            with clock.stage("calibrate", f"{len(the_plan.calib_windows)} candidate windows"):
+                calib = _calibrate(journey, the_plan.calib_windows, config, calibrate_window,
+                                   on_candidate, known_camera, entry)
     camera = calib.camera
 
     if not tracks:
         return JourneyResult(calib, [], [], clock.timings_s,
-                             origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
+                             origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m),
+                             report=journal.reports)
 
-    with clock.stage("ego_motion", f"{len(ego_windows)} windows"):
+    with journal.stage("ego_motion") as entry, \
+            clock.stage("ego_motion", f"{len(ego_windows)} windows"):
         results = ego_sfm.run(ego_motion.requests(
-            ego_windows, names, camera, step=config.ego_frame_step, extra=off_grid,
+            ego_windows, names, camera, step=config.ego_frame_step, extra=the_plan.off_grid,
             position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
         poses = ego_motion.window_poses(ego_windows, results, names)
-    if not poses:
-        raise PipelineError("ego_motion", "no window around the signs could be reconstructed: "
-                            + "; ".join(r.error or "too few frames registered" for r in results))
+        mapped = ego_motion.report(ego_windows, results, poses)
+        entry.summary, entry.details = mapped.summary, list(mapped.details)
+        if not poses:
+            raise PipelineError("ego_motion", "no window around the signs could be "
+                                "reconstructed: " + "; ".join(r.error or "too few frames registered"
+                                                              for r in results))
 
-    with clock.stage("align"):
-        # A window that cannot be aligned (the car stood still through it) is logged and dropped.
-        aligned = georeference.align_windows(
+    with journal.stage("align") as entry, clock.stage("align"):
+        # A window that cannot be aligned (the car stood still through it) is dropped.
+        dropped: list[str] = []
+        aligned = align.align_windows(
             poses, xyz_gps, joint=config.alignment_joint,
-            sigmas=georeference.JointSigmas(gps_m=config.gps_sigma_m))
-    if not aligned:
-        raise PipelineError("align", "no reconstructed window could be aligned to GPS "
-                            "(the GPS track does not move enough around the signs)")
+            sigmas=align.JointSigmas(gps_m=config.gps_sigma_m),
+            on_dropped=lambda p, why: dropped.append(
+                f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
+        aligned_report = align.report(len(poses), aligned, dropped)
+        entry.summary, entry.details = aligned_report.summary, list(aligned_report.details)
+        if not aligned:
+            raise PipelineError("align", "no reconstructed window could be aligned to GPS "
+                                "(the GPS track does not move enough around the signs)")
 
     with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
-        signs, rejected = place_signs(tracks, aligned, xyz_gps, camera, journey, origin, config)
+        signs, rejected = place_signs.place_signs(tracks, aligned, xyz_gps, camera, journey,
+                                                  origin, config)
+    journal.add(place_signs.report(signs, rejected))
 
     # Overlapping windows pose some frames twice: keep the first window's pose.
     traj_idx, first = np.unique(np.concatenate([w.poses.frame_idx for w in aligned]),
@@ -176,22 +219,34 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                          trajectory_frame_ids=[journey.frames[i].frame_id for i in traj_idx],
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_gps[traj_idx],
                          trajectory_T_world_cam=traj_T,
-                         origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
+                         origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m),
+                         report=journal.reports)
 
 
-def _calibrate(journey: Journey, calib_windows, names: list[str], config: PipelineConfig,
-               calibrate_window, on_candidate, known_camera: CameraModel | None) -> Calibration:
+def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,
+               calibrate_window, on_candidate, known_camera: CameraModel | None,
+               entry: _Entry) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
-    candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed."""
+    candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
+    Fills in the calibrate stage's report ``entry``."""
+    stored = f"stored calibration of camera {journey.camera_id} used"
     if not calib_windows:
+        entry.summary = (f"{stored} (reuse_known_calibration is set)"
+                         if config.reuse_known_calibration else
+                         f"{stored}: no candidate window to self-calibrate on")
         return Calibration(known_camera, "supplied")
     try:
-        return calibration.self_calibrate(calib_windows, names, config, calibrate_window,
-                                          hint=journey.camera_prior, width=journey.image_width,
-                                          height=journey.image_height, on_candidate=on_candidate)
-    except PipelineError:
+        calib = calibrate.self_calibrate(calib_windows, config, calibrate_window,
+                                         hint=journey.camera_prior, width=journey.image_width,
+                                         height=journey.image_height, on_candidate=on_candidate,
+                                         trials=entry.details)
+    except PipelineError as exc:
         if known_camera is None:
             raise
         log.warning("self-calibration failed; using the stored calibration of %s",
                     journey.camera_id)
+        entry.summary = f"self-calibration failed, {stored}"
+        entry.details.append(exc.reason)
         return Calibration(known_camera, "supplied")
+    entry.summary = calibrate.summary(calib)
+    return calib

@@ -3,10 +3,10 @@
 Conventions, stated once for the whole pipeline:
 
 * Pixels follow OpenCV: the centre of the top-left pixel is (0, 0); x right, y down. (COLMAP puts
-  pixel centres at +0.5; only ``app.pipeline.colmap_sfm`` converts, at the boundary.)
+  pixel centres at +0.5; only ``app.pipeline.colmap`` converts, at the boundary.)
 * Camera frame ``cam``: x right, y down, z forward (OpenCV / the rectified camera of the contract).
 * World frame ``enu``: a local East-North-Up tangent plane in metres, origin at the journey's first
-  GPS fix (see ``app.pipeline.geodesy``).
+  GPS fix (see ``app.pipeline.geometry.geodesy``).
 * A pose ``T_a_b`` maps points from frame b into frame a: ``p_a = R_a_b @ p_b + t_a_b``. Poses are
   4x4 float64 arrays; stacks of them have shape (N, 4, 4).
 * Lens model: pinhole with zero skew and two-coefficient radial distortion (the paper's eq. 1-2,
@@ -18,11 +18,11 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
-from app.pipeline.uncertainty import GeorefTerms
+from app.pipeline.geometry.uncertainty import GeorefTerms
 
 
 @dataclass(frozen=True)
@@ -110,7 +110,7 @@ class Journey:
     # What validation tolerated but the uploader should know (e.g. frames dropped for lack of GPS).
     warnings: list[str] = field(default_factory=list)
     # White-noise sigma (m, per horizontal axis) of the GPS fixes, None when too few to tell
-    # (app.pipeline.gps_noise).
+    # (geometry.gps_noise).
     gps_noise_m: float | None = None
 
     @property
@@ -127,7 +127,8 @@ class Calibration:
     """Outcome of self-calibration (or of reusing a stored calibration).
 
     ``source`` is ``"self"`` when this journey calibrated itself, ``"supplied"`` when an earlier
-    calibration of the same ``camera_id`` was used, ``"prior"`` when the manifest's hint was used.
+    calibration of the same ``camera_id`` was used. (The manifest's camera hint only seeds
+    self-calibration's first focal length.)
     """
 
     camera: CameraModel
@@ -153,7 +154,7 @@ class SignObservation:
 
 @dataclass(frozen=True)
 class SignUncertainty:
-    """Where a sign's ``cov_enu`` comes from (app.pipeline.uncertainty): the triangulation's own
+    """Where a sign's ``cov_enu`` comes from (``geometry.uncertainty``): the triangulation's own
     (3, 3) m^2 and the georeferencing terms (``GeorefTerms``) the knobs weighed."""
 
     cov_triangulation_enu: np.ndarray
@@ -173,8 +174,8 @@ class Sign:
     std_m: float  # 1-sigma position uncertainty (sqrt of cov_enu's largest eigenvalue)
     reprojection_rms_px: float
     observations: list[SignObservation]
-    facing_deg: float | None = None  # compass bearing of the face (app.pipeline.facing)
-    # (3, 3) m^2 in the journey's ENU frame, triangulation + georeferencing (app.pipeline.uncertainty)
+    facing_deg: float | None = None  # compass bearing of the face (geometry.facing)
+    # (3, 3) m^2 in the journey's ENU frame, triangulation + georeferencing (geometry.uncertainty)
     cov_enu: np.ndarray | None = None
     r95_h_m: float | None = None  # horizontal radius holding the true position with 95 % probability
     uncertainty: SignUncertainty | None = None
@@ -226,14 +227,8 @@ class StageReport:
                    tuple(str(d) for d in data.get("details", ())))
 
 
-class Progress(Protocol):
-    """Called as the pipeline advances: stage name, overall fraction done in [0, 1], a message."""
-
-    def __call__(self, stage: str, fraction: float, message: str = "") -> None: ...
-
-
 def no_progress(stage: str, fraction: float, message: str = "") -> None:
-    """A Progress that ignores updates."""
+    """A ProgressFn that ignores updates."""
 
 
 class PipelineError(Exception):
@@ -256,3 +251,4 @@ class BundleError(PipelineError):
 
 
 ProgressFn = Callable[[str, float, str], None]
+"""Called as the pipeline advances: stage name, overall fraction done in [0, 1], a message."""

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import piexif
 
-from app.pipeline.facing import bearing_deg
+from app.pipeline.geometry.facing import bearing_deg
 from app.pipeline.types import Detection
 
 if TYPE_CHECKING:

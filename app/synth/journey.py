@@ -9,7 +9,7 @@ from typing import Iterator
 
 import numpy as np
 
-from app.pipeline.geodesy import LocalFrame, frame_at
+from app.pipeline.geometry.geodesy import LocalFrame, frame_at
 from app.pipeline.types import CameraModel, Detection
 from app.synth.bundle import GENERATOR_VERSION  # noqa: F401  (re-exported)
 from app.synth.bundle import truth as truth_dict

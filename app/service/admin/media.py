@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 
 from app.pipeline.bundle import FRAME_EXTENSIONS, read_bundle
-from app.pipeline.bundle_zip import BundleLimits, open_bundle
-from app.pipeline.geodesy import frame_at
+from app.pipeline.bundle.zip import BundleLimits, open_bundle
+from app.pipeline.geometry.geodesy import frame_at
 from app.service.storage import BundleStore
 
 CROP_MARGIN = 1.0  # context around the box, as a fraction of its size on each side

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from app.fusion import JourneyCoverage, JourneySign, MapSign
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel, JourneyResult
 from app.service.db.models import (JourneyRow, CoverageRow,
                                 JourneySignRow, MapSignRow)

@@ -10,7 +10,7 @@ from sqlalchemy import (JSON, DateTime, Float, ForeignKey, Integer, String, Text
                         UniqueConstraint)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-from app.pipeline.bundle_detections import MAX_CLASS_CHARS
+from app.pipeline.bundle.detections import MAX_CLASS_CHARS
 
 ROLES = ("fleet", "reader", "admin")
 STATUSES = ("queued", "running", "done", "failed")

@@ -1,7 +1,7 @@
 """``signmap process BUNDLE.zip``: the whole pipeline locally, no server or database needed, with
 distinct exit codes for bad input and for a journey the pipeline could not process.
 
-The summary it prints and the report it writes are ``app.pipeline.process_cli``'s."""
+The summary it prints and the report it writes are ``app.commands.process_report``'s."""
 
 from __future__ import annotations
 
@@ -11,24 +11,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-# Exit codes of `signmap` (documented in its --help epilog; 1: any other failure).
-EXIT_OK = 0
-EXIT_USAGE = 2  # argparse's: an unknown option, a missing argument, a command without a subcommand
-EXIT_BAD_INPUT = 3  # a file given does not exist, cannot be read or breaks the wire contract
-EXIT_PIPELINE_FAILED = 4  # the input was valid but the pipeline could not process the journey
-
-EXIT_CODES_HELP = f"""\
-exit status:
-  {EXIT_OK}  success
-  1  any other failure, e.g. a service command that cannot start (the message
-     says why)
-  {EXIT_USAGE}  usage error: an unknown option, a missing argument or subcommand
-  {EXIT_BAD_INPUT}  bad input (process): a file given does not exist or cannot be read, or
-     the bundle breaks the journey format (docs/journey-format.md); the
-     message says what to fix
-  {EXIT_PIPELINE_FAILED}  the journey could not be processed (process): e.g. its camera could
-     not be calibrated; the message says at which stage and why"""
-
+from app.commands.usage import (EXIT_BAD_INPUT, EXIT_CODES_HELP, EXIT_OK, EXIT_PIPELINE_FAILED,
+                                HelpFormatter)
 
 class BadInput(Exception):
     """A file given on the command line is missing, unreadable or not what it should be."""
@@ -71,9 +55,9 @@ def _calibration(path: str) -> dict[str, float]:
 
 def run_process(args) -> int:
     """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
+    from app.commands.process_report import _progress_printer, report, stage_summary
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
-    from app.pipeline.process_cli import _progress_printer, report
     from app.pipeline.run import process_journey
     from app.pipeline.types import BundleError, CameraModel, PipelineError
     from app.settings import Settings
@@ -104,6 +88,7 @@ def run_process(args) -> int:
                                      known_camera=known, progress=_progress_printer(),
                                      verbose=args.verbose)
         except PipelineError as exc:
+            stage_summary(exc.report, stream=sys.stderr)
             print(f"signmap process: the journey could not be processed at stage {exc.stage}: "
                   f"{exc.reason}", file=sys.stderr)
             return EXIT_PIPELINE_FAILED
@@ -111,6 +96,7 @@ def run_process(args) -> int:
     out.write_text(json.dumps(feature_collection(journey_sign_features(result.signs)), indent=1))
     report_path = Path(args.report) if args.report else out.with_suffix(".report.json")
     report_path.write_text(json.dumps(report(result, journey.warnings), indent=1))
+    stage_summary(result.report)
     cal = result.calibration.camera
     print(f"calibration ({result.calibration.source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
           f"cx={cal.cx:.1f} cy={cal.cy:.1f} k1={cal.k1:.3f} k2={cal.k2:.3f}")
@@ -123,3 +109,30 @@ def run_process(args) -> int:
     print(f"wrote {out} and {report_path}; stages: "
           + ", ".join(f"{k} {v:.1f}s" for k, v in result.timings_s.items()))
     return EXIT_OK
+
+
+def add_parser(sub) -> None:
+    """``signmap process``."""
+    p = sub.add_parser(
+        "process", help="find the signs of one journey on this machine (no server needed)",
+        description="Runs the whole pipeline on one journey bundle: calibrates the camera on the "
+        "journey's turns, reconstructs its motion around each sign, aligns it to GPS and "
+        "triangulates the signs. Progress goes to stderr; the signs and a report are written "
+        "as files.",
+        epilog=EXIT_CODES_HELP, formatter_class=HelpFormatter)
+    p.add_argument("bundle", help="the journey: a .zip of frames, GPS and sign detections as "
+                   "described in docs/journey-format.md")
+    p.add_argument("--out", default="signs.geojson",
+                   help="where to write the signs as GeoJSON (default: %(default)s)")
+    p.add_argument("--report", default=None,
+                   help="where to write the JSON report: calibration, timings, what each stage "
+                   "tried (and why it failed), uncertainty per sign, rejected tracks and why "
+                   "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
+    p.add_argument("--calibration", default=None, metavar="CAMERA.json",
+                   help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
+                   "needed for a journey without a turn to calibrate on")
+    p.add_argument("--workdir", default=None,
+                   help="keep the intermediate files (extracted frames, reconstructions) in this "
+                   "directory (default: a temporary one, deleted at the end)")
+    p.add_argument("--verbose", action="store_true", help="also show COLMAP's own log")
+    p.set_defaults(func=run_process)

@@ -5,7 +5,7 @@ track id is empty). Boxes are OpenCV pixels of the original image, whose pixels 
 [-0.5, width - 0.5] x [-0.5, height - 0.5]; a box may reach ``BORDER_TOLERANCE_PX`` beyond that, since
 clients round or use exclusive end coordinates. A given track id may have one box per frame.
 
-The table streams (``app.pipeline.csv_table``) and what is kept of it is columns of numbers, not an
+The table streams (``bundle.csv_table``) and what is kept of it is columns of numbers, not an
 object per row: validating a 300,000-row table costs tens of MB, and the row and per-frame box
 limits (``BundleLimits``) stop a longer one as soon as it passes them.
 """
@@ -19,7 +19,7 @@ from typing import BinaryIO, Sequence
 
 import numpy as np
 
-from app.pipeline.csv_table import iter_table, parse_float
+from app.pipeline.bundle.csv_table import iter_table, parse_float
 from app.pipeline.types import BundleError, Detection
 
 BORDER_TOLERANCE_PX = 1.0

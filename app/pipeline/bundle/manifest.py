@@ -8,8 +8,8 @@ import json
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from app.pipeline.csv_table import decode_text
-from app.pipeline.gps import parse_iso_time
+from app.pipeline.bundle.csv_table import decode_text
+from app.pipeline.bundle.gps import parse_iso_time
 from app.pipeline.types import BundleError, CameraModel
 
 FORMAT = "signmap-journey/1"

@@ -6,14 +6,14 @@ of the middle fix is noise (plus what a turn adds beyond a quadratic). For white
 ``s`` that residual has sigma ``s * sqrt(1 - h)``, ``h`` the middle fix's leverage in the fit;
 the median absolute residual, scaled for a Gaussian, is robust to the turns. A slowly drifting
 bias moves all fixes of a window together and is not seen: this measures what the fixes scatter
-by, which is what a window alignment's residual is compared with (``app.pipeline.place_signs``).
+by, which is what a window alignment's residual is compared with (``steps.place_signs``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from app.pipeline.geodesy import frame_at
+from app.pipeline.geometry.geodesy import frame_at
 
 WINDOW = 5
 MAX_WINDOWS = 5000  # evenly spread over a long journey: the estimate needs no more

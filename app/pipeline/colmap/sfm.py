@@ -1,13 +1,14 @@
 """COLMAP (pycolmap) structure-from-motion on windows of a journey's frames.
 
 Used by self-calibration (intrinsics free) and by ego-motion (intrinsics fixed). Features are
-extracted and matched once per journey into one database; each window is then mapped separately
-(``IncrementalPipelineOptions.image_names``) so cost grows with the number of windows, not with the
-square of the journey's length.
+extracted and matched once per stage into one database (``stage``); each window is then mapped
+separately (``IncrementalPipelineOptions.image_names``) so cost grows with the number of windows,
+not with the square of the journey's length.
 
 All COLMAP work runs in a spawned child process: fatal COLMAP errors abort the process (glog
-``CHECK``), and that must fail the journey with a reason, never kill a worker. This is also the only
-module that knows COLMAP's pixel convention (pixel centres at +0.5) and converts at the boundary.
+``CHECK``), and that must fail the journey with a reason, never kill a worker. Every COLMAP option
+comes from ``presets``. This is also the only module that knows COLMAP's pixel convention (pixel
+centres at +0.5) and converts at the boundary.
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ from typing import Callable
 
 import numpy as np
 
-from app.pipeline.lifeline import die_with_parent
+from app.pipeline.colmap import presets
+from app.pipeline.colmap.lifeline import die_with_parent
+from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
 from app.pipeline.types import CameraModel, PipelineError
 
 log = logging.getLogger(__name__)
@@ -33,26 +36,12 @@ COLMAP_PIXEL_OFFSET = 0.5
 
 
 @dataclass(frozen=True)
-class FeatureOptions:
-    """How COLMAP extracts, matches and maps (``PipelineConfig`` documents each knob)."""
-
-    max_features: int = 2048
-    max_image_size: int = 1600
-    first_octave: int = 0
-    overlap: int = 6
-    threads: int = 2
-    ba_max_refinements: int = 1
-    ba_function_tolerance: float = 1e-6
-    map_workers: int = 2
-    aspect_prior_sigma: float = 0.0  # stage 2: prior fx = fy with this relative sigma (0: none)
-
-
-@dataclass(frozen=True)
 class WindowRequest:
-    """One window to map. ``camera`` None means unknown intrinsics (self-calibration)."""
+    """One window to map. ``camera``: the intrinsics to hold fixed, or with ``calibrate`` the
+    starting point of self-calibration (its focal length and image size)."""
 
     image_names: list[str]
-    camera: CameraModel | None
+    camera: CameraModel
     calibrate: bool = False
     use_position_priors: bool = False
     # Two of ``image_names`` to start the reconstruction from (None: COLMAP's choice, which favours
@@ -79,15 +68,18 @@ class WindowResult:
     mapping_s: float = 0.0  # wall time COLMAP spent mapping (and refining) this window
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SfmJob:
+    """COLMAP's work for one stage: correspondences into a new database under ``workdir`` (SIFT
+    of ``extract_names``, or ``imported`` tracks), then every window mapped from it."""
+
     image_dir: Path
     workdir: Path
-    width: int
-    height: int
-    extract_names: list[str]  # empty: reuse the features already in workdir
+    extract_names: list[str]  # SIFT from these images; empty when ``imported`` is given
     windows: list[WindowRequest]
-    features: FeatureOptions = field(default_factory=FeatureOptions)
+    sift: SiftOptions = field(default_factory=SiftOptions)
+    mapping: MappingOptions = field(default_factory=MappingOptions)
+    process: ProcessOptions = field(default_factory=ProcessOptions)
     verbose: bool = False
     # GPS positions (ENU metres) of the extracted images, by image name, and their 1-sigma noise
     # (horizontal, vertical): pose priors that keep long windows free of monocular scale drift.
@@ -120,10 +112,10 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     Windows are independent (each maps its own copy of the database), and COLMAP's incremental
     mapper keeps about one core busy (CPU time ~1.1x wall on turn-70): ``map_workers`` processes
     map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
-    workers = max(1, min(job.features.map_workers, len(job.windows)))
+    workers = max(1, min(job.process.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
-    light = replace(job, extract_names=[], imported=None, features=replace(
-        job.features, threads=max(1, job.features.threads // workers)))
+    light = replace(job, extract_names=[], imported=None, process=replace(
+        job.process, threads=max(1, job.process.threads // workers)))
     try:
         with colmap_pool(workers) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()
@@ -189,25 +181,18 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
 
 def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
     """Features and sequential matches of ``job.extract_names``; returns wall seconds per step."""
-    opts = job.features
     t0 = time.perf_counter()
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "SIMPLE_RADIAL"
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = opts.threads
-    extraction.max_image_size = opts.max_image_size
-    extraction.sift.max_num_features = opts.max_features
-    extraction.sift.first_octave = opts.first_octave
+    reader = presets.options(pycolmap, "ImageReaderOptions", presets.IMAGE_READER)
+    extraction = presets.options(pycolmap, "FeatureExtractionOptions", {},
+                                 **presets.sift_extraction(job.sift, job.process))
     pycolmap.extract_features(database, job.image_dir, image_names=job.extract_names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
     t1 = time.perf_counter()
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = opts.threads
-    pairing = pycolmap.SequentialPairingOptions()
-    pairing.overlap = opts.overlap
-    pairing.quadratic_overlap = False
-    pairing.loop_detection = False  # needs a vocabulary file it would try to download
+    matching = presets.options(pycolmap, "FeatureMatchingOptions", {},
+                               num_threads=job.process.threads)
+    pairing = presets.options(pycolmap, "SequentialPairingOptions", presets.SEQUENTIAL_PAIRING,
+                              overlap=job.sift.overlap)
     pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu)
     timings_s = {"extract": t1 - t0, "match": time.perf_counter() - t1}
@@ -234,8 +219,8 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
     essential matrix of the known camera); returns wall seconds per step."""
     feats = job.imported
     t0 = time.perf_counter()
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "SIMPLE_RADIAL"  # as SIFT extraction; replaced when the camera is known
+    # As SIFT extraction; replaced when the camera is known.
+    reader = presets.options(pycolmap, "ImageReaderOptions", presets.IMAGE_READER)
     pycolmap.Database.open(database).close()  # import_images wants the file to exist
     pycolmap.import_images(database, job.image_dir, pycolmap.CameraMode.SINGLE,
                            image_names=feats.image_names, options=reader)
@@ -252,15 +237,13 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
         for (k1, k2), m in feats.matches.items():
             db.write_matches(image_ids[k1], image_ids[k2], np.asarray(m, np.uint32))
     t1 = time.perf_counter()
-    verify = pycolmap.TwoViewGeometryOptions()
-    # KLT positions are sub-pixel and consistent along a track: with the lens known, a tighter
-    # gate than SIFT's 4 px keeps drifted tracks out of the mapper. Unknown, the epipolar model
-    # ignores the distortion and needs the slack.
-    verify.ransac.max_error = 2.0 if feats.camera is not None else 4.0
-    verifier = pycolmap.GeometricVerifierOptions()
+    verify = presets.options(pycolmap, "TwoViewGeometryOptions",
+                             presets.VERIFY_KNOWN_CAMERA if feats.camera is not None
+                             else presets.VERIFY_UNKNOWN_CAMERA)
     # As many threads as matching gets: with one, results are bit-reproducible (the order in
     # which pairs are verified and written feeds the mapper).
-    verifier.num_threads = job.features.threads
+    verifier = presets.options(pycolmap, "GeometricVerifierOptions", {},
+                               num_threads=job.process.threads)
     pycolmap.geometric_verification(database, verifier_options=verifier,
                                     two_view_geometry_options=verify)
     _write_pose_priors(pycolmap, job, database)
@@ -273,7 +256,7 @@ def _colmap_camera(pycolmap, camera: CameraModel):
     return pycolmap.Camera(model="OPENCV", width=camera.width, height=camera.height, params=params)
 
 
-def _camera_model(cam) -> CameraModel:
+def camera_model(cam) -> CameraModel:
     """A COLMAP SIMPLE_RADIAL / RADIAL / OPENCV camera -> CameraModel (OpenCV pixels)."""
     p = np.asarray(cam.params, dtype=float)
     name = cam.model_name
@@ -295,63 +278,28 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     out = job.workdir / f"window_{index:03d}"
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
-    fixed = window.camera is not None and not window.calibrate
-    db_path = database
-    if window.camera is not None:
-        # The database holds one camera; give this window its own copy with the known intrinsics
-        # (fixed) or the stage-1 starting point (one focal, centred principal point, k1 = 0).
-        db_path = out / "window.db"
-        shutil.copyfile(database, db_path)
-        with pycolmap.Database.open(db_path) as db:
-            for cam in db.read_all_cameras():
-                if window.calibrate:
-                    c = window.camera
-                    new = pycolmap.Camera(model="SIMPLE_RADIAL", width=c.width, height=c.height,
-                                          params=[c.fx, c.cx + COLMAP_PIXEL_OFFSET,
-                                                  c.cy + COLMAP_PIXEL_OFFSET, 0.0])
-                else:
-                    new = _colmap_camera(pycolmap, window.camera)
-                new.camera_id = cam.camera_id
-                new.has_prior_focal_length = True
-                db.update_camera(new)
-    options = pycolmap.IncrementalPipelineOptions()
-    options.image_names = list(window.image_names)
-    options.num_threads = job.features.threads
-    # Free-intrinsics mapping sometimes starts from a pair that drifts f and k1 away, registers a
-    # few images and stops; the next model, from the images left, is then usually right (22 of
-    # 22 images after a 4-image model with f = 30396 px, issue 11). Fixed intrinsics need one.
-    options.multiple_models = window.calibrate
-    options.max_num_models = 3
-    options.extract_colors = False
-    # Global BA less often than COLMAP's default (every 10 % growth): windows are short and
-    # local BA keeps them consistent; measured ~20 % faster with the same result.
-    options.ba_global_frames_ratio = 1.5
-    options.ba_global_points_ratio = 1.5
-    # COLMAP re-runs every bundle adjustment after filtering outliers up to 5 (global) / 2 (local)
-    # times; on our short windows the re-runs doubled the mapping time (turn-70, 2026-11-23), and
-    # calibration and sign errors stayed within the tests' and the quick bench's bars without them.
-    options.ba_global_max_refinements = job.features.ba_max_refinements
-    options.ba_local_max_refinements = job.features.ba_max_refinements
-    options.ba_local_function_tolerance = job.features.ba_function_tolerance
-    options.ba_global_function_tolerance = job.features.ba_function_tolerance
-    options.random_seed = 0
-    options.use_prior_position = window.use_position_priors
-    options.use_robust_loss_on_prior_position = True
-    options.mapper.random_seed = 0
-    options.ba_refine_focal_length = not fixed
-    options.ba_refine_extra_params = not fixed
-    options.ba_refine_principal_point = False
-    options.mapper.abs_pose_refine_focal_length = not fixed
-    options.mapper.abs_pose_refine_extra_params = not fixed
-    if fixed:
-        # With known intrinsics an essential matrix fixes forward motion well, and a car on a
-        # straight road moves only forwards: COLMAP's defaults (<= 0.95 forward, >= 16 deg) would
-        # refuse every initial pair there.
-        options.mapper.init_max_forward_motion = 1.0
-        options.mapper.init_min_tri_angle = 4.0
-    empty = WindowResult([], np.zeros((0, 4, 4)),
-                         window.camera or CameraModel(job.width, job.height, 1, 1, 0, 0),
-                         n_input=len(window.image_names))
+    # The database holds one camera; give this window its own copy with the known intrinsics
+    # (fixed) or the stage-1 starting point (one focal, centred principal point, k1 = 0).
+    db_path = out / "window.db"
+    shutil.copyfile(database, db_path)
+    with pycolmap.Database.open(db_path) as db:
+        for cam in db.read_all_cameras():
+            if window.calibrate:
+                c = window.camera
+                new = pycolmap.Camera(model="SIMPLE_RADIAL", width=c.width, height=c.height,
+                                      params=[c.fx, c.cx + COLMAP_PIXEL_OFFSET,
+                                              c.cy + COLMAP_PIXEL_OFFSET, 0.0])
+            else:
+                new = _colmap_camera(pycolmap, window.camera)
+            new.camera_id = cam.camera_id
+            new.has_prior_focal_length = True
+            db.update_camera(new)
+    options = presets.options(
+        pycolmap, "IncrementalPipelineOptions",
+        presets.CALIBRATION_MAPPER if window.calibrate else presets.EGO_MOTION_MAPPER,
+        **presets.mapper_knobs(job.mapping), image_names=list(window.image_names),
+        num_threads=job.process.threads, use_prior_position=window.use_position_priors)
+    empty = WindowResult([], np.zeros((0, 4, 4)), window.camera, n_input=len(window.image_names))
     # The chosen initial pair first, then COLMAP's own choice (-1) if that one leads nowhere.
     pairs = [(-1, -1)]
     if window.init_pair is not None:
@@ -377,17 +325,27 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         empty.error = error
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
-    stage1 = _camera_model(next(iter(rec.cameras.values())))
+    stage1 = camera_model(next(iter(rec.cameras.values())))
     if window.calibrate:
-        from app.pipeline.colmap_refine import refine_all_intrinsics
+        from app.pipeline.colmap.refine import refine_all_intrinsics
         refine_all_intrinsics(pycolmap, rec,
-                              function_tolerance=job.features.ba_function_tolerance,
-                              aspect_sigma=job.features.aspect_prior_sigma)
+                              function_tolerance=job.mapping.ba_function_tolerance,
+                              aspect_sigma=job.mapping.aspect_prior_sigma)
     return _window_result(rec, window, stage1 if window.calibrate else None)
 
 
 def _window_result(rec, window: WindowRequest, stage1: CameraModel | None) -> WindowResult:
-    order = {name: i for i, name in enumerate(window.image_names)}
+    names, T = registered_poses(rec, window.image_names)
+    camera = camera_model(next(iter(rec.cameras.values())))
+    return WindowResult(names, T, camera, stage1,
+                        float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
+                        len(window.image_names))
+
+
+def registered_poses(rec, names: list[str]) -> tuple[list[str], np.ndarray]:
+    """The images of ``names`` that ``rec`` (a pycolmap Reconstruction) registered, in the order
+    of ``names``, and their (K, 4, 4) T_model_cam."""
+    order = {name: i for i, name in enumerate(names)}
     images = sorted((im for im in rec.images.values() if im.has_pose and im.name in order),
                     key=lambda im: order[im.name])
     T = np.zeros((len(images), 4, 4))
@@ -395,7 +353,4 @@ def _window_result(rec, window: WindowRequest, stage1: CameraModel | None) -> Wi
         T_cam_model = np.eye(4)
         T_cam_model[:3, :] = im.cam_from_world().matrix()
         T[k] = np.linalg.inv(T_cam_model)
-    camera = _camera_model(next(iter(rec.cameras.values())))
-    return WindowResult([im.name for im in images], T, camera, stage1,
-                        float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                        len(window.image_names))
+    return [im.name for im in images], T

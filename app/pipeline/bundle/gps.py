@@ -1,7 +1,7 @@
 """GPS of a journey: parse ``gps.csv`` or ``gps.gpx`` and give every frame a time and a position.
 
 Sources, by precedence: ``gps.csv``, else ``gps.gpx``, else EXIF tags of JPEG frames
-(``app.pipeline.gps_exif``).
+(``app.pipeline.bundle.gps_exif``).
 
 ``gps.csv`` (columns ``frame,timestamp_s,lat,lon[,alt_m]``; row numbers as in ``csv_table``):
 
@@ -48,8 +48,8 @@ from typing import BinaryIO, Sequence
 import numpy as np
 from pyproj import Geod
 
-from app.pipeline.csv_table import iter_table, parse_float
-from app.pipeline.gps_noise import white_noise_m
+from app.pipeline.bundle.csv_table import iter_table, parse_float
+from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.types import BundleError
 
 EXTRAPOLATION_MIN_S = 1.5  # extrapolation bound: max(MIN, FIX_INTERVALS x median interval), <= MAX
@@ -102,7 +102,7 @@ class FrameGps:
 
     @property
     def noise_m(self) -> float | None:
-        """White-noise sigma of the fixes (app.pipeline.gps_noise); computed on demand, so the
+        """White-noise sigma of the fixes (geometry.gps_noise); computed on demand, so the
         API's upload validation, which never asks, does not pay for it."""
         if self.fixes is None:
             return None

@@ -3,7 +3,7 @@
 Straight driving is a critical motion for self-calibration (depth and distortion conflate), so only
 frames around the turns that RDP found on the GPS track are used. Stage 1 maps a window with one
 focal length, the principal point at the image centre and k1 (COLMAP SIMPLE_RADIAL); stage 2 refines
-fx, fy, cx, cy, k1, k2 together (``colmap_refine``).
+fx, fy, cx, cy, k1, k2 together (``colmap.refine``).
 
 Incremental mapping with free intrinsics is fragile on car footage: when COLMAP happens to start from
 a forward-moving pair, the two-view bundle adjustment drifts the focal length and k1 away and nothing
@@ -24,9 +24,9 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.colmap_sfm import WindowRequest, WindowResult
+from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
-from app.pipeline.turns import TurnWindow
+from app.pipeline.steps.turns import TurnWindow
 from app.pipeline.types import Calibration, CameraModel, PipelineError
 
 log = logging.getLogger(__name__)
@@ -148,6 +148,23 @@ def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
             and abs(a.k1 - b.k1) <= max(0.02, 10 * tol * abs(a.k1)))
 
 
+def summary(calib: Calibration) -> str:
+    """One line on a self-calibration: the window, its evidence, the camera and the fit."""
+    (first, end), = calib.windows[:1] or [(0, 0)]
+    c = calib.camera
+    return (f"self-calibrated on frames {first}-{end - 1} ({calib.evidence}): "
+            f"{calib.n_registered}/{calib.n_images} registered, "
+            f"{calib.reprojection_error_px:.2f} px; fx {c.fx:.1f}, fy {c.fy:.1f}, "
+            f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
+
+
+def _trial(window: CalibrationWindow, res: WindowResult) -> str:
+    if res.error:
+        return window.label
+    return (f"{window.label}: {len(res.image_names)}/{res.n_input} registered, "
+            f"{res.reprojection_error_px:.2f} px")
+
+
 def no_turn_error(cfg: PipelineConfig) -> PipelineError:
     return PipelineError(STAGE, "the journey has no turn (RDP found no heading change of "
                          f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track); a straight road "
@@ -155,15 +172,19 @@ def no_turn_error(cfg: PipelineConfig) -> PipelineError:
                          "supply a calibration for this camera_id")
 
 
-def self_calibrate(windows: list[CalibrationWindow], frame_names: list[str], cfg: PipelineConfig,
-                   map_window: Callable[[CalibrationWindow, WindowRequest], WindowResult], *,
+def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
+                   map_window: Callable[[CalibrationWindow, CameraModel], WindowResult], *,
                    hint: CameraModel | None = None, width: int, height: int,
-                   on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None
-                   ) -> Calibration:
+                   on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None,
+                   trials: list[str] | None = None) -> Calibration:
     """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
-    reason. ``on_candidate(k, total, window)`` is called before the k-th is mapped."""
+    reason. ``map_window(window, start)`` maps the window's frames with free intrinsics from the
+    camera ``start``. ``on_candidate(k, total, window)`` is called before the k-th is mapped;
+    ``trials``, when given, gets one line per candidate tried: its frames, registration,
+    reprojection error and whether it was accepted or why not (the stage's report)."""
     if not windows:
         raise no_turn_error(cfg)
+    trials = [] if trials is None else trials
     start = initial_camera(width, height, cfg, hint)
     reasons: list[str] = []
     good: list[tuple[CalibrationWindow, WindowResult]] = []
@@ -172,16 +193,18 @@ def self_calibrate(windows: list[CalibrationWindow], frame_names: list[str], cfg
     for k, window in enumerate(windows):
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
-        names = [frame_names[i] for i in window.frame_idx]
-        res = map_window(window, WindowRequest(names, start, calibrate=True))
+        res = map_window(window, start)
         why = judge_window(res, cfg)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
             reasons.append(f"{window.label}: {why}")
+            trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
         if res.reprojection_error_px <= cfg.calib_accept_reprojection_px:
             chosen, evidence = [(window, res)], "reprojection"
+            trials.append(f"{_trial(window, res)}: accepted, under "
+                          f"{cfg.calib_accept_reprojection_px:g} px")
             break
         agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)]
         if agreeing:
@@ -190,8 +213,12 @@ def self_calibrate(windows: list[CalibrationWindow], frame_names: list[str], cfg
             # error that ends the search on its own.
             chosen, evidence = agreeing + [(window, res)], "agreement"
             log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
+            trials.append(f"{_trial(window, res)}: accepted, agrees with "
+                          f"{agreeing[0][0].label}")
             break
         good.append((window, res))
+        trials.append(f"{_trial(window, res)}: above {cfg.calib_accept_reprojection_px:g} px, "
+                      "kept until another window agrees")
         reasons.append(f"{window.label}: {res.reprojection_error_px:.2f} px and no other window "
                        f"agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
     if not chosen:

@@ -5,10 +5,10 @@ well-conditioned alignment to GPS. The frames near signs form stretches; each st
 a chain of windows of at most ``ego_max_frames_per_window`` frames that share a few frames with
 their neighbours (``plan_windows``), so mapping cost stays linear in the journey length and every
 frame is mapped about once; the shared frames let the alignment tie the chain together
-(``georeference.align_windows``). A sign seen on two passes (a loop) is split into one track per
-pass (``split_passes``).
+(``align.align_windows``). A sign seen on two passes (a loop) has one track per pass
+(``sign_tracks.split_passes``).
 
-Correspondences come from KLT tracks (``track_features``, ``tracked_features``) by default, or from
+Correspondences come from KLT feature tracks (``colmap.klt_features``) by default, or from
 COLMAP's SIFT. Each window starts from two frames a few metres apart (``requests(init_gap_frames=
 ...)``): left to itself, COLMAP starts from the most-matched pair, i.e. neighbouring frames, and on
 loop-300 that short forward baseline towards a facade fixed a wrong relative pose which the whole
@@ -22,72 +22,12 @@ resampling them (no interpolation blur, no time).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
-from app.pipeline.colmap_sfm import ImportedFeatures, WindowRequest, WindowResult
-from app.pipeline.track_features import KltOptions, track_features
-from app.pipeline.types import CameraModel, Detection
-
-
-@dataclass(frozen=True)
-class SignTrack:
-    """Detections of one physical sign: ``frame_idx`` (M,) indices into the journey's frames (sorted),
-    ``px`` (M, 2) box centres in the original distorted image (OpenCV pixels)."""
-
-    track_id: str
-    cls: str
-    frame_idx: np.ndarray
-    px: np.ndarray
-    part: int = 0  # which pass of the sign, when ``split_passes`` cut its track
-
-    @property
-    def span(self) -> tuple[int, int]:
-        return int(self.frame_idx[0]), int(self.frame_idx[-1]) + 1
-
-
-def sign_tracks(detections: list[Detection], frame_ids: list[str]) -> list[SignTrack]:
-    """Group detections by track id; one detection per frame (the highest score wins)."""
-    index = {f: i for i, f in enumerate(frame_ids)}
-    by_track: dict[str, dict[int, Detection]] = {}
-    for det in detections:
-        frames = by_track.setdefault(det.track_id, {})
-        i = index[det.frame_id]
-        if i not in frames or (det.score or 0.0) > (frames[i].score or 0.0):
-            frames[i] = det
-    tracks = []
-    for track_id, frames in by_track.items():
-        order = sorted(frames)
-        classes = [frames[i].cls for i in order]
-        cls = max(set(classes), key=classes.count)
-        tracks.append(SignTrack(track_id, cls, np.array(order, dtype=int),
-                                np.array([frames[i].centre_px for i in order], dtype=float)))
-    return sorted(tracks, key=lambda t: (t.span, t.track_id))
-
-
-def split_passes(track: SignTrack, *, max_gap: int, max_frames: int) -> list[SignTrack]:
-    """The passes of one track: cut where it goes unseen for more than ``max_gap`` frames (the car
-    drove away and came back) and, within a pass, so that no part spans more than ``max_frames``
-    frames. Each part keeps the track id; ``part`` numbers them in time order.
-
-    A sign seen again after a loop would otherwise demand one window from the first sighting to the
-    last, i.e. the whole journey, whose monocular reconstruction drifts in scale.
-    """
-    fi = track.frame_idx
-    cuts = [0, *(np.flatnonzero(np.diff(fi) > max_gap) + 1).tolist(), len(fi)]
-    pieces: list[tuple[int, int]] = []
-    for lo, hi in zip(cuts[:-1], cuts[1:]):
-        start = lo
-        for k in range(lo + 1, hi):
-            if fi[k] - fi[start] >= max_frames:
-                pieces.append((start, k))
-                start = k
-        pieces.append((start, hi))
-    if len(pieces) == 1:
-        return [track]
-    return [SignTrack(track.track_id, track.cls, fi[lo:hi], track.px[lo:hi], part)
-            for part, (lo, hi) in enumerate(pieces)]
+from app.pipeline.colmap.sfm import WindowRequest, WindowResult
+from app.pipeline.steps.sign_tracks import SignTrack
+from app.pipeline.types import CameraModel, StageReport
 
 
 def plan_windows(tracks: list[SignTrack], n_frames: int, *, margin: int, max_frames: int,
@@ -99,7 +39,7 @@ def plan_windows(tracks: list[SignTrack], n_frames: int, *, margin: int, max_fra
     whole stretch); each stretch is cut into the fewest windows of at most ``max_frames`` frames in
     which consecutive windows share ``overlap`` frames. Windows start on multiples of ``step`` so
     that shared frames are mapped by both. A sign's frames may span two windows of a stretch:
-    jointly aligned, they agree on their shared frames to millimetres (``georeference``), and
+    jointly aligned, they agree on their shared frames to millimetres (``align``), and
     every frame is mapped about once instead of once per sign window around it.
     """
     spans = sorted((max(0, a - margin), min(n_frames, b + margin)) for a, b in
@@ -182,41 +122,6 @@ def mapped_frames(windows: list[tuple[int, int]], step: int,
     return np.array(sorted({i for w in windows for i in window_frames(w, step, extra)}), dtype=int)
 
 
-def tracked_features(frame_idx: np.ndarray, images: Iterable[np.ndarray], frame_names: list[str],
-                     camera: CameraModel | None, *, step: int, overlap: int,
-                     options: KltOptions = KltOptions(), min_matches: int = 15
-                     ) -> ImportedFeatures:
-    """KLT correspondences for COLMAP over the frames ``frame_idx`` (sorted; ``images`` are those
-    frames, 8-bit grayscale, in the same order). Tracks break where two of them are more than
-    ``step`` frames apart. Every pair up to ``overlap`` frames of ``frame_idx`` apart, with no
-    break between them and at least ``min_matches`` shared tracks, is a tentative pair (COLMAP
-    verifies it).
-
-    Tracking every frame instead of every ``step``-th gave the same calibration accuracy on
-    turn-70 (0.33 px either way), so only the mapped frames are read and tracked."""
-    frame_idx = np.asarray(frame_idx, dtype=int)
-    broken = np.concatenate([[False], np.diff(frame_idx) > step])
-
-    def with_breaks():
-        for image, brk in zip(images, broken):
-            if brk:
-                yield None
-            yield image
-
-    tracks = track_features(with_breaks(), options)
-    segment = np.cumsum(broken)  # no track crosses from one segment into the next
-    matches = {}
-    for k1 in range(len(frame_idx)):
-        for k2 in range(k1 + 1, min(len(frame_idx), k1 + overlap + 1)):
-            if segment[k2] != segment[k1]:
-                break
-            m = tracks.pair_matches(k1, k2)
-            if len(m) >= min_matches:
-                matches[(k1, k2)] = m
-    return ImportedFeatures([frame_names[i] for i in frame_idx], tracks.keypoints_px, matches,
-                            camera)
-
-
 @dataclass(frozen=True)
 class WindowPoses:
     """A window's reconstruction: ``frame_idx`` (K,) journey frame indices of the registered frames,
@@ -232,3 +137,13 @@ def window_poses(windows: list[tuple[int, int]], results: list[WindowResult],
     index = {name: i for i, name in enumerate(frame_names)}
     return [WindowPoses(w, np.array([index[n] for n in r.image_names], dtype=int), r.T_model_cam)
             for w, r in zip(windows, results) if len(r.image_names) >= 3]
+
+
+def report(windows: list[tuple[int, int]], results: list[WindowResult],
+           poses: list[WindowPoses]) -> StageReport:
+    """The ego_motion stage's report: each window's registration, or why it failed."""
+    details = tuple(f"frames {a}-{b - 1}: " + (r.error or f"{len(r.image_names)}/{r.n_input} "
+                                                f"registered, {r.reprojection_error_px:.2f} px")
+                    for (a, b), r in zip(windows, results))
+    return StageReport("ego_motion", f"{len(poses)} of {len(windows)} windows reconstructed",
+                       details)

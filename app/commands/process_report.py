@@ -1,5 +1,5 @@
 """What ``signmap process`` prints while it runs and the JSON report it writes (the command itself
-is ``app.process_command``)."""
+is ``app.commands.process``)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import sys
 import time
 from typing import Sequence
 
-from app.pipeline.types import JourneyResult
+from app.pipeline.types import JourneyResult, StageReport
 
 
 def _progress_printer(stream=sys.stderr):
@@ -37,4 +37,11 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                    "n_frames": len(s.observations)} for s in result.signs],
         "rejected": [{"track_id": r.track_id, "class": r.cls, "reason": r.reason}
                      for r in result.rejected],
+        "report": [r.to_json() for r in result.report],
     }
+
+
+def stage_summary(reports: Sequence[StageReport], stream=sys.stdout) -> None:
+    """One line per stage that ran: what it found or why it failed."""
+    for r in reports:
+        print(f"{r.stage:<12} {r.summary}", file=stream)

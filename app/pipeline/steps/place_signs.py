@@ -2,7 +2,7 @@
 
 A track may have several passes (the car came by twice); each pass is triangulated from the
 aligned poses of its own frames, and the passes that succeed are combined. Frames: ``world`` and
-``enu`` are the journey's ENU frame (metres), as in ``app.pipeline.triangulation``.
+``enu`` are the journey's ENU frame (metres), as in ``app.pipeline.geometry.triangulation``.
 """
 
 from __future__ import annotations
@@ -11,14 +11,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline import georeference, geodesy
 from app.pipeline.config import PipelineConfig
-from app.pipeline.facing import facing_deg
-from app.pipeline.triangulation import (TriangulatedPoint, TriangulationError, largest_std_m,
-                                        triangulate, undistort_pixels)
-from app.pipeline.types import (CameraModel, Journey, RejectedSign, Sign, SignObservation,
-                                SignUncertainty)
-from app.pipeline.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.geometry import geodesy
+from app.pipeline.geometry.facing import facing_deg
+from app.pipeline.geometry.triangulation import (
+    TriangulatedPoint,
+    TriangulationError,
+    largest_std_m,
+    triangulate,
+    undistort_pixels,
+)
+from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.steps import align
+from app.pipeline.types import (
+    CameraModel,
+    Journey,
+    RejectedSign,
+    Sign,
+    SignObservation,
+    SignUncertainty,
+    StageReport,
+)
 
 
 @dataclass(frozen=True)
@@ -77,6 +90,13 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
     return signs, rejected
 
 
+def report(signs: list[Sign], rejected: list[RejectedSign]) -> StageReport:
+    """The triangulate stage's report: how many signs were placed, and each rejected track."""
+    return StageReport("triangulate", f"{len(signs)} signs placed, {len(rejected)} tracks rejected",
+                       tuple(f"track {r.track_id} ({r.cls}) rejected: {r.reason}"
+                             for r in rejected))
+
+
 def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str, str],
                     within_m: float) -> dict[str, list[PlacedPass | str]]:
     """The passes of tracks that are one sign, joined under the id of the one seen first.
@@ -112,7 +132,7 @@ def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str
 def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
                config: PipelineConfig, gps_noise_m: float | None = None) -> PlacedPass:
     """One pass triangulated; raises TriangulationError with the reason it cannot be placed."""
-    tp = georeference.track_poses(track, aligned, xyz_gps, mode=config.alignment,
+    tp = align.track_poses(track, aligned, xyz_gps, mode=config.alignment,
                                   margin=config.sign_window_margin_frames,
                                   min_frames=config.short_alignment_min_frames)
     if tp is None or tp.keep.sum() < 2:

@@ -6,7 +6,7 @@ synthetic journeys, whose bias stays correlated over ~40-60 frames). ``align_win
 windows that pose the same frames (chained by ``ego_motion.plan_windows``) jointly: they must
 agree on those frames, so a whole chain averages the bias over its length. A short stretch of
 straight road leaves the roll about the road undetermined by positions;
-``alignment.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
+``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
 
 ``track_poses`` gives a sign its frames' poses: ``full`` from its chain; ``short`` (the paper's
 best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign.
@@ -16,14 +16,17 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.alignment import Sim3, align_trajectory
-from app.pipeline.ego_motion import SignTrack, WindowPoses
+from app.pipeline.geometry.similarity import Sim3, align_trajectory
+from app.pipeline.steps.ego_motion import WindowPoses
+from app.pipeline.steps.sign_tracks import SignTrack
+from app.pipeline.types import StageReport
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +46,7 @@ def align_window(poses: WindowPoses, xyz_gps: np.ndarray) -> AlignedWindow:
     return AlignedWindow(poses, sim, info, sim.apply_poses(poses.T_model_cam))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JointSigmas:
     """1-sigma errors of the joint alignment's residuals. ``gps_m``: a GPS fix (per axis);
     ``centre_m`` / ``rotation_deg``: how closely two windows' world poses of one frame agree (both
@@ -62,12 +65,14 @@ ROBUST_SCALE_SIGMAS = 2.0
 
 
 def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool = True,
-                  sigmas: JointSigmas = JointSigmas(),
-                  min_shared_frames: int = 2) -> list[AlignedWindow]:
+                  sigmas: JointSigmas = JointSigmas(), min_shared_frames: int = 2,
+                  on_dropped: Callable[[WindowPoses, str], None] | None = None
+                  ) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
 
     Each window is first aligned on its own (``align_window``, which handles the straight-road
-    roll); a window that cannot be (the car stood still) is logged and left out. With ``joint``,
+    roll); a window that cannot be (the car stood still) is logged, passed to
+    ``on_dropped(window, reason)`` and left out. With ``joint``,
     windows linked by at least ``min_shared_frames`` common registered frames are then aligned
     together (``_align_group``); a window linked to none keeps its own alignment.
     """
@@ -77,6 +82,8 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
             aligned.append(align_window(p, xyz_gps))
         except ValueError as exc:
             log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
+            if on_dropped is not None:
+                on_dropped(p, str(exc))
     if not joint:
         return aligned
     for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames)):
@@ -85,6 +92,18 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
         for k, window in zip(group, joint_windows):
             aligned[k] = replace(window, info={**window.info, "group": g})
     return aligned
+
+
+def report(n_windows: int, aligned: list[AlignedWindow], dropped: list[str]) -> StageReport:
+    """The align stage's report: the windows aligned (their GPS residual) and those dropped
+    (``dropped``: one line each, from ``align_windows(on_dropped=...)``)."""
+    chains = len({w.info.get("group") for w in aligned if "group" in w.info})
+    summary = f"{len(aligned)} of {n_windows} windows aligned to GPS"
+    if chains:
+        summary += f" in {chains} joint group(s)"
+    details = tuple(f"frames {w.poses.window[0]}-{w.poses.window[1] - 1}: GPS rms "
+                    f"{w.info['rms_m']:.2f} m" for w in aligned)
+    return StageReport("align", summary, details + tuple(dropped))
 
 
 def _shared_rows(a: WindowPoses, b: WindowPoses) -> tuple[np.ndarray, np.ndarray]:

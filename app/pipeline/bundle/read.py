@@ -4,7 +4,7 @@
 tracks); ``read_bundle`` validates, extracts the frames and fills empty track ids (the job).
 
 Every violation of the contract becomes a ``BundleError`` whose message tells the uploader what to
-fix; the zip is treated as hostile (``app.pipeline.bundle_zip``) and the work it may cost is bounded
+fix; the zip is treated as hostile (``app.pipeline.bundle.zip``) and the work it may cost is bounded
 by ``BundleLimits`` before it is spent. Checks run cheapest first: the zip's entries and the sizes
 they declare (before anything is unpacked), manifest, the first frame's header, GPS, detections
 (streamed), then each frame in turn: its header (pixel limit before any decoding), then with
@@ -14,11 +14,11 @@ Frames are ``frames/<stem>.jpg|.jpeg|.png`` (extensions are case-sensitive like 
 bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders
 are ignored), ordered by stem. Every frame's header must be a JPEG or PNG of the first frame's size
 (decoding uses raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to
-the stored pixels). GPS comes from ``app.pipeline.gps`` / ``app.pipeline.gps_exif``; detections from
-``app.pipeline.bundle_detections``, with empty track ids filled by ``app.pipeline.tracks``.
+the stored pixels). GPS comes from ``bundle.gps`` / ``bundle.gps_exif``; detections from
+``bundle.detections``, with empty track ids filled by ``bundle.associate``.
 
 Frames lying too far outside the GPS fixes' time span are dropped from the journey's ends
-(``app.pipeline.gps``): their files are removed again, their detections left out (a detection may
+(``bundle.gps``): their files are removed again, their detections left out (a detection may
 still name them: the bundle is valid), and ``Journey.warnings`` says so (also logged).
 """
 
@@ -34,12 +34,12 @@ import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin, PngImagePlugin
 
-from app.pipeline.bundle_detections import DetectionTable, read_detections
-from app.pipeline.bundle_manifest import Manifest, parse_manifest
-from app.pipeline.bundle_zip import BundleLimits, BundleZip, open_bundle
-from app.pipeline.gps import FrameGps, gps_from_csv, gps_from_gpx
-from app.pipeline.gps_exif import gps_from_exif, read_exif_fix
-from app.pipeline.tracks import assign_tracks, sort_detections
+from app.pipeline.bundle.associate import assign_tracks, sort_detections
+from app.pipeline.bundle.detections import DetectionTable, read_detections
+from app.pipeline.bundle.gps import FrameGps, gps_from_csv, gps_from_gpx
+from app.pipeline.bundle.gps_exif import gps_from_exif, read_exif_fix
+from app.pipeline.bundle.manifest import Manifest, parse_manifest
+from app.pipeline.bundle.zip import BundleLimits, BundleZip, open_bundle
 from app.pipeline.types import BundleError, Frame, Journey
 
 __all__ = ["BundleCheck", "BundleLimits", "check_bundle", "read_bundle"]

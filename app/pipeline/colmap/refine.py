@@ -4,12 +4,14 @@ The stage-1 reconstruction (one focal length, centred principal point, k1) is co
 OPENCV model (fx, fy, cx, cy, k1, k2, p1, p2) and bundle-adjusted with every intrinsic free except
 the tangential terms p1 = p2 = 0, which the paper's radial model does not have. COLMAP's BA flags
 switch whole parameter groups, so p1, p2 are held by a Ceres subset manifold on the camera's
-parameter block. Runs inside the COLMAP child process (``colmap_sfm``).
+parameter block. Runs inside the COLMAP child process (``colmap.sfm``).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from app.pipeline.colmap import presets
 
 OPENCV_TANGENTIAL = [6, 7]
 
@@ -52,15 +54,11 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
                    function_tolerance: float, aspect_sigma: float = 0.0) -> None:
     import pyceres
 
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = True
-    options.refine_principal_point = principal_point
-    options.refine_extra_params = True
-    options.print_summary = False
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
-    options.ceres.loss_function_scale = loss_scale_px
-    options.ceres.solver_options.max_num_iterations = 100
-    options.ceres.solver_options.function_tolerance = function_tolerance
+    options = presets.options(pycolmap, "BundleAdjustmentOptions",
+                              presets.INTRINSICS_BUNDLE_ADJUSTMENT,
+                              refine_principal_point=principal_point,
+                              **{"ceres.loss_function_scale": loss_scale_px,
+                                 "ceres.solver_options.function_tolerance": function_tolerance})
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)

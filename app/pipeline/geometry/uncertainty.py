@@ -1,7 +1,7 @@
 """How far a placed sign may be from where it really is: its covariance in the journey's ENU frame
 (metres), the triangulation's own plus what georeferencing adds.
 
-The triangulation covariance (``app.pipeline.triangulation``) counts only the pixel noise of the
+The triangulation covariance (``triangulation``) counts only the pixel noise of the
 detections on fixed poses: a few centimetres, while the real errors are tenths of a metre. The
 sign inherits the error of the window alignment that placed its poses: the GPS noise the Umeyama
 fit averages (``alignment_rms_m`` over ``n`` fixes) and the part of the GPS error it cannot

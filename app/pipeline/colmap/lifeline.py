@@ -7,7 +7,7 @@ resource tracker alive). So every COLMAP child calls ``die_with_parent`` first.
 On Linux this is ``prctl(PR_SET_PDEATHSIG, SIGKILL)``: the kernel kills the child when its parent
 dies, even while COLMAP's C++ code holds the GIL or is stuck, which a watchdog thread in the
 child could not promise. Its one trap: the signal fires when the parent *thread* that spawned the
-child exits. ``colmap_sfm.run_sfm`` creates, uses and shuts down its pool in one call, so the
+child exits. ``sfm.run_sfm`` creates, uses and shuts down its pool in one call, so the
 threads that spawn its processes (the caller's, or the pool's manager thread) outlive them.
 Elsewhere a daemon thread polls ``os.getppid()``, which changes when the child is reparented.
 """

@@ -1,0 +1,108 @@
+"""One stage's COLMAP work (self-calibration or ego-motion) over chosen frames of a journey:
+correspondences of those frames into the stage's own database (SIFT, or KLT feature tracks read
+from the frames), then the stage's windows mapped from it (``sfm``).
+
+Correspondences need no camera, so ``run.process_journey`` computes the ego-motion stage's KLT
+tracks in a thread while COLMAP calibrates in its child process (OpenCV releases the GIL).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from app.pipeline.colmap import sfm
+from app.pipeline.colmap.klt_features import KltOptions, klt_correspondences
+from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
+from app.pipeline.config import PipelineConfig
+from app.pipeline.types import CameraModel, Journey, PipelineError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Correspondences:
+    """What a stage's database is made from: SIFT extracted by COLMAP from ``extract_names``, or
+    ``imported`` KLT tracks (then ``extract_names`` is empty)."""
+
+    extract_names: list[str]
+    imported: sfm.ImportedFeatures | None = None
+
+
+class StageSfm:
+    """COLMAP mapping for the stage named ``stage`` of the journey frames ``frame_idx`` (sorted
+    indices; ``step``: the spacing of the regular ones, where KLT tracks may continue), with
+    correspondences by ``front_end`` ("sift" or "klt").
+
+    ``correspondences()`` computes them once (and may run early, in a thread); ``run`` writes
+    them into a new database under ``workdir`` and maps the requested windows from it. Each stage
+    runs once: a calibration candidate is a stage of its own."""
+
+    def __init__(self, stage: str, workdir: Path, journey: Journey, frame_idx: np.ndarray, *,
+                 step: int, front_end: str, config: PipelineConfig, xyz_gps: np.ndarray,
+                 verbose: bool):
+        self.stage, self.workdir, self.journey, self.step = stage, workdir, journey, step
+        self.front_end, self.config, self.verbose = front_end, config, verbose
+        self.frame_idx = np.asarray(frame_idx, int)
+        self.priors = {journey.frames[i].path.name: tuple(xyz_gps[i]) for i in self.frame_idx}
+        self._lock = threading.Lock()
+        self._features: Correspondences | None = None
+
+    def correspondences(self) -> Correspondences:
+        """The stage's correspondences; computed once."""
+        with self._lock:
+            if self._features is None:
+                self._features = self._compute()
+            return self._features
+
+    def _compute(self) -> Correspondences:
+        frames = [self.journey.frames[i] for i in self.frame_idx]
+        if self.front_end == "sift":
+            return Correspondences([f.path.name for f in frames])
+        t0 = time.perf_counter()
+        imported = klt_correspondences(
+            self.frame_idx, (self._gray(f.path) for f in frames),
+            [f.path.name for f in self.journey.frames], None, step=self.step,
+            overlap=self.config.klt_pair_overlap,
+            options=KltOptions(max_corners=self.config.klt_max_corners))
+        log.info("KLT: %d frames tracked in %.1f s, %d tentative pairs", len(frames),
+                 time.perf_counter() - t0, len(imported.matches))
+        return Correspondences([], imported)
+
+    def run(self, requests: list[sfm.WindowRequest], camera: CameraModel | None, *,
+            on_mapped: Callable[[int, int], None] | None = None) -> list[sfm.WindowResult]:
+        """Map ``requests``; ``camera`` None: intrinsics unknown (imported pairs are verified
+        without them). ``on_mapped(k, total)`` is called as windows finish."""
+        cfg = self.config
+        features = self.correspondences()
+        extract, imported = features.extract_names, features.imported
+        if imported is not None:
+            imported = replace(imported, camera=camera)
+        job = sfm.SfmJob(
+            image_dir=self.journey.frames[0].path.parent, workdir=self.workdir,
+            extract_names=extract, windows=requests,
+            sift=SiftOptions(
+                max_features=cfg.sift_max_features, max_image_size=cfg.sift_max_image_size,
+                first_octave=(-1 if self.journey.image_width < cfg.sift_upsample_below_px
+                              else cfg.sift_first_octave),
+                overlap=cfg.match_overlap),
+            mapping=MappingOptions(ba_max_refinements=cfg.ba_max_refinements,
+                                   ba_function_tolerance=cfg.ba_function_tolerance,
+                                   aspect_prior_sigma=cfg.calib_aspect_prior_sigma),
+            process=ProcessOptions(threads=cfg.colmap_threads, map_workers=cfg.colmap_map_workers),
+            verbose=self.verbose, prior_enu=self.priors,
+            prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported)
+        return sfm.run_sfm(job, on_mapped=on_mapped)
+
+    def _gray(self, path: Path) -> np.ndarray:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:  # the bundle reader decoded every frame already; this is disk trouble
+            raise PipelineError(self.stage, f"frame {path.name} could not be read back")
+        return image

@@ -1,0 +1,81 @@
+"""The journey's plan, made before any image is read: the turns of its GPS track and the
+calibration candidate windows around them (``turns``, ``calibrate.candidate_windows``), the
+passes of its sign tracks (``sign_tracks``) and the ego-motion windows around them
+(``ego_motion.plan_windows``). ``run.process_journey`` weighs its progress by the plan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.pipeline.config import PipelineConfig
+from app.pipeline.steps import calibrate, ego_motion, sign_tracks, turns
+from app.pipeline.steps.calibrate import CalibrationWindow
+from app.pipeline.steps.sign_tracks import SignTrack
+from app.pipeline.steps.turns import TurnWindow
+from app.pipeline.types import CameraModel, Journey, StageReport
+
+
+@dataclass(frozen=True, kw_only=True)
+class JourneyPlan:
+    """``calib_windows`` empty: nothing to self-calibrate on (no turn), or a known camera is
+    reused. ``tracks``: one per pass of each sign track long enough to triangulate.
+    ``ego_windows``: frame ranges [start, end) to map, every ``ego_frame_step``-th frame plus the
+    ``off_grid`` frames; ``ego_frames``: all the frames they map (sorted)."""
+
+    turns: list[TurnWindow]
+    calib_windows: list[CalibrationWindow]
+    tracks: list[SignTrack]
+    ego_windows: list[tuple[int, int]]
+    off_grid: np.ndarray
+    ego_frames: np.ndarray
+
+
+def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
+                 known_camera: CameraModel | None = None) -> JourneyPlan:
+    """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
+    xy_track = turns.smooth_track(xyz_gps[:, :2], np.array([f.timestamp_s for f in
+                                                            journey.frames]),
+                                  config.turn_smoothing_s)
+    turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
+                                    min_angle_deg=config.turn_min_angle_deg,
+                                    window_m=config.turn_window_m)
+    s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
+    calib_windows = calibrate.candidate_windows(turn_windows, s_m, config)
+    if known_camera is not None and config.reuse_known_calibration:
+        calib_windows = []
+    # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
+    margin = config.sign_window_margin_frames
+    tracks = [p for t in sign_tracks.group_detections(journey.detections, journey.frame_ids)
+              for p in sign_tracks.split_passes(
+                  t, max_gap=2 * margin,
+                  max_frames=max(1, config.ego_max_frames_per_window - 2 * margin))
+              if len(p.frame_idx) >= config.min_track_frames]
+    ego_windows = ego_motion.plan_windows(tracks, len(journey.frames), margin=margin,
+                                          max_frames=config.ego_max_frames_per_window,
+                                          step=config.ego_frame_step,
+                                          overlap=config.ego_window_overlap_frames,
+                                          bridge_gap=config.ego_bridge_gap_frames)
+    off_grid = ego_motion.off_grid_frames(tracks, config.ego_frame_step, config.min_track_frames)
+    return JourneyPlan(turns=turn_windows, calib_windows=calib_windows, tracks=tracks,
+                       ego_windows=ego_windows, off_grid=off_grid,
+                       ego_frames=ego_motion.mapped_frames(ego_windows, config.ego_frame_step,
+                                                           off_grid))
+
+
+def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
+    """The turns stage's report: the turns found and what was planned around them."""
+    turns_found = [f"turn at frame {t.vertex} (frames {t.start}-{t.end - 1}): "
+                   f"{t.angle_deg:+.0f} deg heading change, {t.rotation_deg:.0f} deg rotation"
+                   for t in plan.turns]
+    if plan.turns:
+        summary = (f"{len(plan.turns)} turn(s) of at least {config.turn_min_angle_deg:g} deg: "
+                   + ", ".join(f"{t.angle_deg:+.0f} deg" for t in plan.turns))
+    else:
+        summary = f"no turn of at least {config.turn_min_angle_deg:g} deg on the GPS track"
+    planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
+               f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
+               f"window(s) mapping {len(plan.ego_frames)} frames"]
+    return StageReport("turns", summary, tuple(turns_found + planned))
