@@ -22,7 +22,7 @@ from app.pipeline.geometry.facing import bearing_deg
 from app.pipeline.types import Detection
 
 if TYPE_CHECKING:
-    from app.synth.journey import SynthJourney
+    from app.synth.journey import SynthJourney  # type only: journey imports this module
 
 GPX_NS = "http://www.topografix.com/GPX/1/1"
 # Bumped whenever the same SynthConfig renders different files: caches of bundles key on it.
