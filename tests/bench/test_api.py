@@ -14,7 +14,8 @@ from app.service.db import session_scope
 from app.service.models import Journey
 from bench.api_load import Options, ok, run_api_bench
 from bench.api_stack import Service, account
-from tests.conftest import PG_URL, REDIS_URL, sqlite_stack
+from tests.utils.backends import PG_URL, REDIS_URL
+from tests.utils.stack import sqlite_stack
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from bench.tables import render_report
 
 CAMERA = CameraModel(1242, 375, 959.2, 952.9, 694.4, 241.7, -0.369, 0.158)
 ORIGIN = {"lat": 49.011, "lon": 8.418, "alt_m": 112.0}
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _truth(n: int = 12) -> dict:

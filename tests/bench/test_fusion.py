@@ -23,7 +23,7 @@ from bench.plots import plot_fusion
 
 CAMERA = CameraModel(1242, 375, 959.2, 952.9, 694.4, 241.7, -0.369, 0.158)
 ORIGIN = {"lat": 49.011, "lon": 8.418, "alt_m": 112.0}
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # track id -> (class, true plate centre in truth ENU, metres)
 TRUE_SIGNS = {"0": ("stop", (10.0, 0.0, 2.0)), "1": ("yield", (20.0, 5.0, 2.0)),
               "2": ("parking", (30.0, -5.0, 2.0))}

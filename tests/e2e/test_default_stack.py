@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from tests.conftest import auth, poll_journey, sqlite_stack, upload
-from tests.map_support import map_sign_errors_m
-from tests.service_support import sign_errors_m, truth_bbox
+from tests.utils.stack import auth, poll_journey, sqlite_stack, upload
+from tests.utils.map_support import map_sign_errors_m
+from tests.utils.service_support import sign_errors_m, truth_bbox
 
 pytestmark = pytest.mark.slow
 

@@ -18,7 +18,8 @@ What is made cheap, and why it is still the real thing:
   of the journeys' camera_id -- the TRUE camera, as if an earlier journey had calibrated it -- and
   the pipeline runs with ``reuse_known_calibration``: exactly the path every later journey of a
   calibrated camera takes in production (``jobs.run_journey`` -> ``latest_calibration``).
-  Self-calibration through the service is covered by test_e2e_embedded / test_e2e_stack.
+  Self-calibration through the service is covered by tests/e2e/test_default_stack.py and
+  test_real_stack.py.
 * 30 frames per journey (one ego-motion window of 15 images). (Cheaper went wrong when ego-motion
   still used SIFT: with 24 frames journey 1's window reconstructed badly (one sign, 22 m off);
   half-size images put three journeys' signs 16-19 m off.) The SIFT settings below were chosen
@@ -55,9 +56,9 @@ from app.service.models import CalibrationRecord, Journey
 from app.synth.journey import SynthConfig
 from bench.fusion import fusion_journeys
 from bench.metrics import truth_frame
-from tests.conftest import (CeleryWorker, Stack, _synthetic, auth, make_settings, sqlite_stack,
-                            upload)
-from tests.service_support import sign_errors_m, truth_bbox
+from tests.utils.journeys import synthetic_journey
+from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, sqlite_stack, upload
+from tests.utils.service_support import sign_errors_m, truth_bbox
 
 pytestmark = [pytest.mark.slow, pytest.mark.postgres]
 
@@ -78,7 +79,8 @@ def journey_configs() -> list[SynthConfig]:
 
 @dataclass(frozen=True)
 class _BaseTemp:
-    """The one thing ``_synthetic`` asks of ``tmp_path_factory``, picklable for a child process."""
+    """The one thing ``synthetic_journey`` asks of ``tmp_path_factory``, picklable for a child
+    process."""
 
     path: Path
 
@@ -87,7 +89,7 @@ class _BaseTemp:
 
 
 def _render(base: _BaseTemp, name: str, config: dict) -> tuple[Path, dict]:
-    return _synthetic(base, name, **config)
+    return synthetic_journey(base, name, **config)
 
 
 @pytest.fixture(scope="module")

@@ -20,9 +20,9 @@ from sqlalchemy import func, select
 
 from app.service.db import session_scope
 from app.service.models import Journey, JourneySign
-from tests.conftest import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
-from tests.map_support import map_sign_errors_m
-from tests.service_support import sign_errors_m, signs_enu, truth_bbox
+from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
+from tests.utils.map_support import map_sign_errors_m
+from tests.utils.service_support import sign_errors_m, signs_enu, truth_bbox
 
 pytestmark = [pytest.mark.slow, pytest.mark.postgres]
 
@@ -84,7 +84,7 @@ def _live_members(pgid: int) -> list[int]:
     return pids
 
 
-# tests/test_two_hosts.py kills a worker mid-job in the default suite; this longer variant also
+# tests/e2e/test_two_hosts.py kills a worker mid-job in the default suite; this longer variant also
 # compares the finished signs with an uninterrupted run.
 @pytest.mark.extended
 def test_a_killed_workers_journey_is_finished_by_the_next_worker(real_stack, uninterrupted_run,

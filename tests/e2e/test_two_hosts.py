@@ -21,9 +21,9 @@ from sqlalchemy import func, select
 from app.pipeline.types import CameraModel
 from app.service.db import session_scope
 from app.service.models import JourneySign
-from tests.conftest import (SESSION_TAG, CeleryWorker, Stack, auth, make_settings, s3_objects,
-                            upload)
-from tests.test_fusion_rendered import seed_calibration
+from tests.utils.backends import SESSION_TAG, s3_objects
+from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, upload
+from tests.e2e.test_fusion_rendered import seed_calibration
 
 pytestmark = pytest.mark.postgres
 TIMEOUT_S = 240

@@ -15,7 +15,7 @@ from app.pipeline.bundle import BundleLimits, check_bundle, read_bundle
 from app.pipeline.gps import GpsFixes, interpolate_to_frames
 from app.pipeline.gps_exif import ExifFix, gps_from_exif
 from app.pipeline.types import BundleError, CameraModel
-from tests import bundle_factory as bf
+from tests.utils import bundle_factory as bf
 
 
 def _read(tmp_path: Path, files, **kwargs):

@@ -20,7 +20,7 @@ from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.run import process_journey
 from app.pipeline.types import CameraModel
-from tests.conftest import _synthetic
+from tests.utils.journeys import synthetic_journey
 
 pytestmark = pytest.mark.slow
 
@@ -47,7 +47,7 @@ VARIED = {
 
 @pytest.mark.parametrize("name", sorted(VARIED))
 def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, tmp_path):
-    bundle, truth = _synthetic(tmp_path_factory, name, **VARIED[name])
+    bundle, truth = synthetic_journey(tmp_path_factory, name, **VARIED[name])
     journey = read_bundle(bundle, tmp_path / "bundle")
     # Without detections the pipeline stops after calibrating.
     journey = dataclasses.replace(journey, detections=[])

@@ -13,7 +13,7 @@ from app.pipeline.bundle import read_bundle
 from app.pipeline.gps import GpsFixes, extrapolation_bound_s, gps_from_gpx, interpolate_to_frames
 from app.pipeline.process_cli import report
 from app.pipeline.types import BundleError, Calibration, CameraModel, JourneyResult
-from tests import bundle_factory as bf
+from tests.utils import bundle_factory as bf
 
 LAT_RATE_DEG_PER_S = 1e-4  # ~11 m/s northwards
 

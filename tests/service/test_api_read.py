@@ -9,8 +9,8 @@ from sqlalchemy.dialects import postgresql
 
 from app.service.db import session_scope
 from app.service.queries import BBox, map_signs_query
-from tests.conftest import ADMIN_KEY, auth, upload
-from tests.service_support import bf_zip, finish, made_result
+from tests.utils.stack import ADMIN_KEY, auth, upload
+from tests.utils.service_support import bf_zip, finish, made_result
 
 LAT, LON = 49.0112, 8.4185
 
@@ -97,7 +97,7 @@ def test_postgres_bbox_query_uses_the_gist_index(pg_url):
 
 
 def test_openapi_documents_the_upload_and_the_answers(tmp_path):
-    from tests.conftest import sqlite_stack
+    from tests.utils.stack import sqlite_stack
 
     stack = sqlite_stack(tmp_path / "data")
     with stack.client() as client:

@@ -40,10 +40,10 @@ from app.pipeline.bundle import read_bundle
 from app.service.app import create_app
 from app.service.db import session_scope
 from app.service.models import Journey, MapSign
-from tests import bundle_factory as bf
-from tests import map_support as ms
-from tests.conftest import ADMIN_KEY, Stack, auth, make_settings, sqlite_stack, upload
-from tests.service_support import bf_zip, finish, made_result
+from tests.utils import bundle_factory as bf
+from tests.utils import map_support as ms
+from tests.utils.stack import ADMIN_KEY, Stack, auth, make_settings, sqlite_stack, upload
+from tests.utils.service_support import bf_zip, finish, made_result
 
 EXAMPLES = int(os.environ.get("SIGNMAP_FUZZ_EXAMPLES", "25"))
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,

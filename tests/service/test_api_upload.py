@@ -16,8 +16,8 @@ from sqlalchemy import update
 
 from app.service.db import session_scope
 from app.service.models import Journey
-from tests import bundle_factory as bf
-from tests.conftest import auth, sqlite_stack
+from tests.utils import bundle_factory as bf
+from tests.utils.stack import auth, sqlite_stack
 
 
 def _post(client, key: str, data: bytes, filename: str = "journey.zip"):

@@ -10,8 +10,9 @@ from sqlalchemy import select
 
 from app.service.db import session_scope
 from app.service.models import ApiKey
-from tests import bundle_factory as bf
-from tests.conftest import ADMIN_KEY, REPO, auth, settings_env, sqlite_stack
+from tests.utils import bundle_factory as bf
+from tests.utils.paths import REPO
+from tests.utils.stack import ADMIN_KEY, auth, settings_env, sqlite_stack
 
 CALLERS = ("none", "unknown", "fleet_owner", "fleet_other", "reader", "admin_key", "env_admin")
 

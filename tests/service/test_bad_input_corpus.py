@@ -3,7 +3,7 @@ later), against the real app. Each case is one row of ``CASES``: how to build th
 exact status, a fragment of the JSON ``detail``. For each, nothing may be stored (no journey row,
 no file under incoming/ or bundles/) and the server must still answer.
 
-Grow it with every finding: add a builder (``tests/hostile_bundles.py`` or ``tests/
+Grow it with every finding: add a builder (``tests/utils/hostile_bundles.py`` or ``tests/utils/
 bundle_factory.py``) and a row. ``bench/hostile_uploads.py`` measures what the cases cost.
 """
 
@@ -15,8 +15,8 @@ from typing import Callable
 
 import pytest
 
-from tests import hostile_bundles as hb
-from tests.conftest import auth, sqlite_stack
+from tests.utils import hostile_bundles as hb
+from tests.utils.stack import auth, sqlite_stack
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,8 @@ import pytest
 
 from app.service.db import session_scope
 from app.service.models import Journey, utc_now
-from tests.conftest import REPO, CeleryWorker, Stack, make_settings, sqlite_stack
+from tests.utils.paths import REPO
+from tests.utils.stack import CeleryWorker, Stack, make_settings, sqlite_stack
 
 # Spawns the COLMAP pool exactly as run_sfm does, busies its processes and prints their pids.
 PARENT = """

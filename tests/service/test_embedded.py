@@ -11,9 +11,9 @@ from sqlalchemy import update
 from app.service import jobstate
 from app.service.db import session_scope
 from app.service.models import Journey, utc_now
-from tests import bundle_factory as bf
-from tests.conftest import auth, poll_journey, sqlite_stack, upload
-from tests.service_support import bf_zip
+from tests.utils import bundle_factory as bf
+from tests.utils.stack import auth, poll_journey, sqlite_stack, upload
+from tests.utils.service_support import bf_zip
 
 NO_TURN = "the journey has no turn"
 

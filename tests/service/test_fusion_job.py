@@ -14,8 +14,8 @@ from app.pipeline.bundle import read_bundle
 from app.service import fusion_job
 from app.service.db import session_scope
 from app.service.models import Journey, MapSign, MapSignMember
-from tests import map_support as ms
-from tests.service_support import bf_zip
+from tests.utils import map_support as ms
+from tests.utils.service_support import bf_zip
 
 
 @pytest.fixture(scope="module")

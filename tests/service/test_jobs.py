@@ -12,9 +12,9 @@ from app.service import jobstate, storage
 from app.service.db import session_scope
 from app.service.jobs import run_journey
 from app.service.models import CalibrationRecord, Journey, JourneySign, utc_now
-from tests import bundle_factory as bf
-from tests.conftest import upload
-from tests.service_support import bf_zip, finish, made_result
+from tests.utils import bundle_factory as bf
+from tests.utils.stack import upload
+from tests.utils.service_support import bf_zip, finish, made_result
 
 SIGNS = [("0", "stop", 49.0112, 8.4185, 114.0), ("1", "yield", 49.0113, 8.4185, 114.0)]
 

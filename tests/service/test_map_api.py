@@ -16,9 +16,9 @@ from app.service.db import session_scope
 from app.service.map_read import page_query
 from app.service.models import utc_now
 from app.service.queries import BBox
-from tests import map_support as ms
-from tests.conftest import ADMIN_KEY, auth
-from tests.service_support import bf_zip
+from tests.utils import map_support as ms
+from tests.utils.stack import ADMIN_KEY, auth
+from tests.utils.service_support import bf_zip
 
 
 @pytest.fixture(scope="module")
@@ -183,7 +183,7 @@ def test_postgres_map_page_is_read_from_the_covering_index_alone(pg_url):
 
 
 def test_a_running_journey_cannot_be_deleted(stack):
-    from tests.conftest import upload
+    from tests.utils.stack import upload
 
     key = stack.key("fleet")
     with stack.client() as client:

@@ -13,9 +13,9 @@ from sqlalchemy import func, select
 from app.pipeline.bundle import read_bundle
 from app.service.db import session_scope
 from app.service.models import MapSign, MapSignMember
-from tests import map_support as ms
-from tests.conftest import CeleryWorker, Stack, make_settings
-from tests.service_support import bf_zip
+from tests.utils import map_support as ms
+from tests.utils.stack import CeleryWorker, Stack, make_settings
+from tests.utils.service_support import bf_zip
 from worker.celery_app import FUSE_JOURNEY, make_celery
 
 pytestmark = pytest.mark.postgres

@@ -19,7 +19,8 @@ from app.service.map_tiles import EXTENT, MEDIA_TYPE, Tile, decode
 from app.service.models import MapSign
 from app.service.queries import BBox
 from bench.map_data import ensure_loaded
-from tests.conftest import ADMIN_KEY, PG_URL, auth, make_settings, sqlite_stack
+from tests.utils.backends import PG_URL
+from tests.utils.stack import ADMIN_KEY, auth, make_settings, sqlite_stack
 
 T0 = datetime(2026, 11, 1, 8, 0, tzinfo=timezone.utc)
 
@@ -180,7 +181,7 @@ def test_following_next_returns_every_sign_in_the_box_exactly_once(bench_url, tm
             MapSign.lon_deg.between(box.min_lon, box.max_lon))))
     assert len(expected) > 60
     settings = make_settings(tmp_path / "d", database_url=bench_url)
-    from tests.conftest import Stack
+    from tests.utils.stack import Stack
     with Stack("bench", settings).client() as client:
         ids, cursor, pages = [], None, 0
         while True:

@@ -22,7 +22,9 @@ from sqlalchemy.exc import OperationalError
 from app.service.app import create_app
 from app.service.db import upgrade
 from app.service.startup import StartupError
-from tests.conftest import REPO, _pg_database, make_settings, settings_env
+from tests.utils.backends import pg_database
+from tests.utils.paths import REPO
+from tests.utils.stack import make_settings, settings_env
 
 def _closed_port() -> int:
     with socket.socket() as s:
@@ -115,14 +117,14 @@ def test_an_unmigrated_database_is_refused_at_start(tmp_path):
 
 @pytest.mark.postgres
 def test_health_answers_503_json_when_the_database_goes_away(tmp_path, pg_url):
-    with _pg_database(f"signmap_test_gone_{secrets.token_hex(3)}") as url:
+    with pg_database(f"signmap_test_gone_{secrets.token_hex(3)}") as url:
         settings = make_settings(tmp_path / "data", database_url=url)
         client = TestClient(create_app(settings), raise_server_exceptions=False)
         with client:
             assert client.get("/api/v1/health").json() == {"status": "ok"}
             from sqlalchemy import create_engine, text
 
-            from tests.conftest import PG_URL
+            from tests.utils.backends import PG_URL
 
             admin = create_engine(PG_URL, isolation_level="AUTOCOMMIT")
             with admin.connect() as conn:

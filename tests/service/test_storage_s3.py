@@ -21,9 +21,10 @@ from app.service.db import session_scope
 from app.service.jobs import run_journey
 from app.service.models import Journey
 from app.settings import Settings
-from tests import bundle_factory as bf
-from tests.conftest import ADMIN_KEY, Stack, auth, s3_objects, upload
-from tests.service_support import bf_zip
+from tests.utils import bundle_factory as bf
+from tests.utils.backends import s3_objects
+from tests.utils.stack import ADMIN_KEY, Stack, auth, upload
+from tests.utils.service_support import bf_zip
 
 UNREACHABLE = "the bundle store is unreachable; try again later"
 
@@ -94,7 +95,7 @@ def test_an_unreachable_object_store_fails_the_upload_with_503(stack, s3_storage
 
 
 def test_a_queue_failure_removes_the_object_it_stored(tmp_path, s3_storage_url):
-    from tests.conftest import sqlite_stack
+    from tests.utils.stack import sqlite_stack
 
     # A broker nobody listens on: the upload is stored, then cannot be queued.
     s3 = sqlite_stack(tmp_path / "data", storage_url=s3_storage_url,

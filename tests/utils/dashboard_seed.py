@@ -10,8 +10,8 @@ from app.service import jobstate, storage
 from app.service.db import session_scope
 from app.service.models import Journey
 from app.settings import Settings
-from tests import bundle_factory as bf
-from tests.service_support import made_result
+from tests.utils import bundle_factory as bf
+from tests.utils.service_support import made_result
 
 try:
     from app.service.fusion_job import store_and_fuse as _store_and_fuse

@@ -1,7 +1,7 @@
 """Hostile journey bundles found by probing the service (issue 13), built quickly in memory.
 
 Each builder returns the zip's bytes and is cached, so a test session builds each once. They are
-small uploads that used to cost the API seconds to minutes and gigabytes; ``tests/
+small uploads that used to cost the API seconds to minutes and gigabytes; ``tests/service/
 test_bad_input_corpus.py`` holds what the service must answer to each, and ``bench/
 hostile_uploads.py`` measures what each costs the API process.
 """
@@ -16,7 +16,7 @@ import zlib
 import numpy as np
 from PIL import Image
 
-from tests import bundle_factory as bf
+from tests.utils import bundle_factory as bf
 
 PAD_BYTES = 250 * 2**20
 

@@ -8,7 +8,7 @@ import secrets
 import numpy as np
 
 from app.service.db import session_scope
-from tests import bundle_factory as bf
+from tests.utils import bundle_factory as bf
 
 
 def made_result(signs: list[tuple[str, str, float, float, float | None]], source: str = "self",

@@ -17,9 +17,10 @@ from app.service.auth import create_key
 from app.service.db import session_scope
 from app.service.models import Journey
 from bench.serve import serve
-from tests.browser.seed import add_journey, set_progress
-from tests.conftest import ADMIN_KEY, REPO, auth, make_settings, settings_env
-from tests.real_services import service_unavailable
+from tests.utils.dashboard_seed import add_journey, set_progress
+from tests.utils.paths import REPO
+from tests.utils.stack import ADMIN_KEY, auth, make_settings, settings_env
+from tests.utils.real_services import service_unavailable
 
 CHROMIUM = Path("/usr/bin/chromium")
 SHOTS = REPO / "test-output"

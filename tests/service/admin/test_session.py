@@ -15,7 +15,7 @@ from app.service.auth import key_sha256
 from app.service.admin.session import COOKIE
 from app.service.db import get_engine, session_scope, upgrade
 from app.service.models import AdminSession, ApiKey, Journey, utc_now
-from tests.conftest import ADMIN_KEY, Stack, auth, make_settings
+from tests.utils.stack import ADMIN_KEY, Stack, auth, make_settings
 
 
 def _sign_in(client, key: str = ADMIN_KEY) -> str:
