@@ -1,6 +1,6 @@
 """What each hostile upload of the bad-input corpus costs the API process (issue 13, findings 1-3).
 
-Run from a checkout (it builds the uploads with ``tests/hostile_bundles.py``)::
+Run from a checkout (it builds the uploads with ``tests/utils/hostile_bundles.py``)::
 
     PYTHONPATH=$PWD python -m bench.hostile_uploads [--code DIR] [CASE ...]
 
@@ -62,7 +62,7 @@ print(json.dumps({"status": response.status_code, "seconds": round(seconds, 2),
 
 
 def _cases() -> dict:
-    from tests import hostile_bundles as hb
+    from tests.utils import hostile_bundles as hb
 
     return {
         "1M detection rows": hb.million_detection_rows,

@@ -19,8 +19,8 @@ from app.cli import build_parser, main
 from app.pipeline.types import (Calibration, CameraModel, JourneyResult, PipelineError,
                                 RejectedSign, Sign, SignObservation)
 from app.commands.usage import EXIT_BAD_INPUT, EXIT_PIPELINE_FAILED, EXIT_USAGE
-from tests.bundle_factory import broken_bundle, valid_files, zip_bytes
-from tests.conftest import REPO
+from tests.utils.bundle_factory import broken_bundle, valid_files, zip_bytes
+from tests.utils.paths import REPO
 
 
 def _help(capsys, *argv: str) -> str:

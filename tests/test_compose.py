@@ -10,7 +10,7 @@ from urllib.parse import urlparse
 
 import pytest
 
-from tests.conftest import REPO
+from tests.utils.paths import REPO
 
 yaml = pytest.importorskip("yaml")
 

@@ -10,11 +10,11 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO
-from tests.real_services import running_in_ci
+from tests.utils.paths import REPO
+from tests.utils.real_services import running_in_ci
 
 INNER_CONFTEST = """\
-from tests.real_services import register_real_service_skips
+from tests.utils.real_services import register_real_service_skips
 
 
 def pytest_configure(config):
@@ -24,7 +24,7 @@ def pytest_configure(config):
 INNER_TESTS = """\
 import pytest
 
-from tests.real_services import service_unavailable
+from tests.utils.real_services import service_unavailable
 
 
 @pytest.mark.postgres

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO
+from tests.utils.paths import REPO
 
 BASH = shutil.which("bash")
 TOOLS = ("dirname", "cat", "mkdir", "cp", "mktemp")  # what the scripts call besides Python

@@ -224,7 +224,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     if not chosen:
         # A lone candidate above the sharp-image error is not accepted: a wrong minimum
         # (fx 23 % low, k1 +0.32 at 0.75 px) was the best of a 5 Hz journey's candidates
-        # (tests/test_calibration_varied.py, CI 2026-11-25), and a wrong calibration reused for
+        # (tests/pipeline/test_calibration_varied.py, CI 2026-11-25), and a wrong calibration reused for
         # the camera is worse than none.
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
                             + "; ".join(reasons))

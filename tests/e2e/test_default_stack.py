@@ -1,0 +1,53 @@
+"""End to end on the default stack (SQLite, jobs in the API process): a rendered journey with a turn
+is uploaded, calibrated and mapped within 1 m of the truth; then a straight journey of the same
+camera, which cannot calibrate itself, is mapped with the stored calibration."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.utils.stack import auth, poll_journey, sqlite_stack, upload
+from tests.utils.map_support import map_sign_errors_m
+from tests.utils.service_support import sign_errors_m, truth_bbox
+
+pytestmark = pytest.mark.slow
+
+
+def _finished(body: dict) -> bool:
+    return body["status"] in ("done", "failed")
+
+
+def test_embedded_stack_maps_synthetic_journeys(tmp_path, turn_journey_bundle,
+                                                straight_journey_bundle):
+    stack = sqlite_stack(tmp_path / "data", embedded_worker=True)
+    fleet, reader = stack.key("fleet"), stack.key("reader")
+    turn_zip, turn_truth = turn_journey_bundle
+    straight_zip, straight_truth = straight_journey_bundle
+    with stack.client() as client:
+        turn_id = upload(client, fleet, turn_zip.read_bytes())
+        body = poll_journey(client, auth(fleet), turn_id, _finished)
+        assert body["status"] == "done", body["error"]
+        assert body["calibration_source"] == "self" and body["attempts"] == 1
+        for name in ("fx", "fy"):
+            assert body["calibration"][name] == pytest.approx(turn_truth["camera"][name],
+                                                              rel=0.03)
+        features = client.get(f"/api/v1/journeys/{turn_id}/signs",
+                              headers=auth(fleet)).json()["features"]
+        assert body["n_signs"] == len(features) >= 1  # how many is the pipeline tests' concern
+        errors = sign_errors_m(features, turn_truth)
+        assert max(errors.values()) < 1.0, errors
+
+        mapped = client.get("/api/v1/signs", headers=auth(reader),
+                            params={"bbox": truth_bbox(turn_truth)}).json()["features"]
+        # One journey of this place so far: one fused map sign per journey sign.
+        assert [f["properties"]["n_journeys"] for f in mapped] == [1] * len(features)
+        assert max(map_sign_errors_m(mapped, turn_truth)) < 1.0
+
+        straight_id = upload(client, fleet, straight_zip.read_bytes())
+        body = poll_journey(client, auth(fleet), straight_id, _finished)
+        assert body["status"] == "done", body["error"]
+        assert body["calibration_source"] == "supplied"
+        features = client.get(f"/api/v1/journeys/{straight_id}/signs",
+                              headers=auth(fleet)).json()["features"]
+        errors = sign_errors_m(features, straight_truth)
+        assert errors and max(errors.values()) < 1.0, errors
