@@ -18,11 +18,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from app.pipeline.geometry.uncertainty import GeorefTerms
+if TYPE_CHECKING:  # geometry imports these types; the annotation needs only the name
+    from app.pipeline.geometry.uncertainty import GeorefTerms
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,7 @@
-"""The operators' dashboard under /admin: ``mount_admin(app)`` adds its pages and static files."""
+"""The operators' dashboard under /admin: ``mount_admin(app)`` adds its pages and static files.
+Server-rendered pages (``routes``, ``templates/``) over what they show (``data``: table reads;
+``media``: a stored bundle's track and sign crops), behind a sign-in session (``session``). The
+map views call the API's route functions directly: the dashboard is the layer above the API."""
 
 from __future__ import annotations
 

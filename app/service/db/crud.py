@@ -1,21 +1,13 @@
 """Row updates made by the API, the dashboard and the sweeps alike (the job's own writes are in
-``app.service.jobs.state``): requeueing a failed journey, deleting one, forgetting expired
-dashboard sessions."""
+``app.service.jobs.state``): requeueing a failed journey, taking back an upload, forgetting
+expired dashboard sessions. Deleting a journey re-fuses the map: ``app.service.jobs.fusion``."""
 
 from __future__ import annotations
 
 from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
 
-from app.service import storage
 from app.service.db.models import AdminSessionRow, JourneyRow, utc_now
-from app.service.db.session import session_scope
-from app.service.jobs import fusion
-from app.settings import Settings
-
-
-class JourneyRunning(Exception):
-    """The journey is being processed; it cannot be deleted now."""
 
 
 def owned_upload(session: Session, owner_key_id: int | None, sha256: str) -> JourneyRow | None:
@@ -36,23 +28,6 @@ def requeue_failed(session: Session, journey_id: str) -> bool:
 def delete_upload(session: Session, journey_id: str) -> None:
     """Take back a journey row just inserted by an upload that could not be queued."""
     session.execute(delete(JourneyRow).where(JourneyRow.id == journey_id))
-
-
-def delete_journey(settings: Settings, store: storage.BundleStore, journey_id: str) -> bool:
-    """Delete a journey with its signs and coverage, re-fuse the map around it and release its
-    bundle (kept while another journey has the same bytes). False when there is no such journey;
-    ``JourneyRunning`` when it is being processed."""
-    url = settings.effective_database_url
-    with session_scope(url) as session:
-        row = session.get(JourneyRow, journey_id)
-        running = row is not None and row.status == "running"
-        sha256 = row.bundle_sha256 if row is not None else None
-    if running:
-        raise JourneyRunning(journey_id)
-    if not fusion.delete_journey(url, journey_id, settings):
-        return False
-    storage.release_bundle(url, store, sha256)
-    return True
 
 
 def forget_expired(session: Session) -> int:

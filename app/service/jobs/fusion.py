@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from app.fusion import JourneyCoverage, JourneySign, MapSign, detect_changes, fuse_map
 from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult
+from app.service import storage
 from app.service.db import map_rows
 from app.service.jobs import state
 from app.service.db.session import session_scope
@@ -282,3 +283,24 @@ def _log(what: str, summary: FusionSummary) -> None:
              "%d unchanged map signs; biased journeys: %s", what, summary.n_journey_signs,
              len(summary.created), len(summary.updated), len(summary.removed), summary.unchanged,
              ", ".join(summary.biased_journeys) or "none")
+
+
+class JourneyRunning(Exception):
+    """The journey is being processed; it cannot be deleted now."""
+
+
+def delete_journey_and_bundle(settings: Settings, store: storage.BundleStore, journey_id: str) -> bool:
+    """Delete a journey with its signs and coverage, re-fuse the map around it and release its
+    bundle (kept while another journey has the same bytes). False when there is no such journey;
+    ``JourneyRunning`` when it is being processed."""
+    url = settings.effective_database_url
+    with session_scope(url) as session:
+        row = session.get(JourneyRow, journey_id)
+        running = row is not None and row.status == "running"
+        sha256 = row.bundle_sha256 if row is not None else None
+    if running:
+        raise JourneyRunning(journey_id)
+    if not delete_journey(url, journey_id, settings):
+        return False
+    storage.release_bundle(url, store, sha256)
+    return True

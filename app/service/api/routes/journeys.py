@@ -25,6 +25,7 @@ from app.service.auth import Principal
 from app.service.db import crud, queries
 from app.service.db.models import JourneyRow
 from app.service.deps import Admin, Fleet, SessionDep, SettingsDep
+from app.service.jobs import fusion
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/api/v1")
@@ -175,8 +176,8 @@ def get_journey_signs(journey_id: JourneyId, who: Fleet, session: SessionDep) ->
 def delete_journey(request: Request, journey_id: JourneyId, who: Admin,
                    settings: SettingsDep) -> None:
     try:
-        found = crud.delete_journey(settings, request.app.state.store, journey_id)
-    except crud.JourneyRunning:
+        found = fusion.delete_journey_and_bundle(settings, request.app.state.store, journey_id)
+    except fusion.JourneyRunning:
         raise HTTPException(status.HTTP_409_CONFLICT, f"journey {journey_id} is running") from None
     if not found:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
