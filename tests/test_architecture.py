@@ -5,7 +5,6 @@ enough to take in at a glance."""
 from __future__ import annotations
 
 import ast
-import os
 
 import grimp
 import numpy as np
