@@ -16,6 +16,7 @@ from app.service.jobs import run
 from tests.utils.stack import ADMIN_KEY, auth, sqlite_stack, upload
 from tests.utils.service_support import bf_zip, finish, made_result
 
+
 @pytest.fixture
 def stack(tmp_path):
     return sqlite_stack(tmp_path / "data")
