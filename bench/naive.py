@@ -20,24 +20,10 @@ from app.pipeline.colmap.sfm import camera_model, registered_poses
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy
 from app.pipeline.geometry.similarity import umeyama
-from app.pipeline.geometry.triangulation import (
-    TriangulationError,
-    triangulate,
-    undistort_pixels,
-)
+from app.pipeline.geometry.triangulation import TriangulationError, triangulate, undistort_pixels
 from app.pipeline.steps.sign_tracks import group_detections
-from app.pipeline.types import (
-    Calibration,
-    CameraModel,
-    Journey,
-    JourneyResult,
-    PipelineError,
-    ProgressFn,
-    RejectedSign,
-    Sign,
-    SignObservation,
-    no_progress,
-)
+from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
+                                ProgressFn, RejectedSign, Sign, SignObservation, no_progress)
 
 
 def _poses(rec, names: list[str]) -> tuple[np.ndarray, np.ndarray]:

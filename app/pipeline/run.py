@@ -24,16 +24,8 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy
 from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
-from app.pipeline.types import (
-    Calibration,
-    CameraModel,
-    Journey,
-    JourneyResult,
-    PipelineError,
-    ProgressFn,
-    StageReport,
-    no_progress,
-)
+from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
+                                ProgressFn, StageReport, no_progress)
 
 log = logging.getLogger(__name__)
 

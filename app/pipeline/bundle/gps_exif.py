@@ -20,12 +20,8 @@ from typing import Sequence
 import numpy as np
 from PIL import ExifTags, Image
 
-from app.pipeline.bundle.gps import (
-    FrameGps,
-    check_frame_times,
-    check_plausible_motion,
-    check_position,
-)
+from app.pipeline.bundle.gps import (FrameGps, check_frame_times, check_plausible_motion,
+                                     check_position)
 from app.pipeline.types import BundleError
 
 NO_GPS_MESSAGE = "bundle has no GPS: add gps.csv, gps.gpx, or EXIF GPS tags to every JPEG frame"

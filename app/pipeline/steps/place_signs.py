@@ -14,24 +14,12 @@ import numpy as np
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy
 from app.pipeline.geometry.facing import facing_deg
-from app.pipeline.geometry.triangulation import (
-    TriangulatedPoint,
-    TriangulationError,
-    largest_std_m,
-    triangulate,
-    undistort_pixels,
-)
+from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError,
+                                                 largest_std_m, triangulate, undistort_pixels)
 from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
 from app.pipeline.steps import align
-from app.pipeline.types import (
-    CameraModel,
-    Journey,
-    RejectedSign,
-    Sign,
-    SignObservation,
-    SignUncertainty,
-    StageReport,
-)
+from app.pipeline.types import (CameraModel, Journey, RejectedSign, Sign, SignObservation,
+                                SignUncertainty, StageReport)
 
 
 @dataclass(frozen=True)
