@@ -109,6 +109,10 @@ class PipelineConfig(BaseModel):
     # Triangulation.
     min_track_frames: int = 3
     max_reprojection_rms_px: float = 4.0
+    min_inlier_share: float = Field(
+        1.0, description="a track reprojecting above max_reprojection_rms_px is placed again "
+                         "from the detections within that distance of its robust fit when they "
+                         "are at least this share of it (1: never)")
     max_sign_std_m: float = 2.0
     min_ray_angle_deg: float = 1.0
     # Chosen on the corpus tuning half: 99 % of well-placed signs' windows lay <= 3.1 x the GPS

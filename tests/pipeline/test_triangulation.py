@@ -2,8 +2,9 @@ import cv2
 import numpy as np
 import pytest
 
-from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError, midpoint,
-                                        triangulate, undistort_pixels)
+from app.pipeline.geometry.triangulation import (ReprojectionError, TriangulatedPoint,
+                                                 TriangulationError, midpoint, triangulate,
+                                                 triangulate_inliers, undistort_pixels)
 from app.pipeline.types import CameraModel
 
 KITTI = CameraModel(width=1242, height=375, fx=959.0, fy=959.0, cx=696.0, cy=224.2,
@@ -154,3 +155,30 @@ def test_undistort_pixels_round_trips_kitti_lens_to_the_corners():
     assert undistort_pixels(KITTI, np.zeros((0, 2))).shape == (0, 2)
     no_lens = KITTI.replace(k1=0.0, k2=0.0)
     np.testing.assert_allclose(undistort_pixels(no_lens, px), px, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_few_boxes_on_the_wrong_object_are_dropped_and_the_rest_place_the_sign(seed):
+    rng = np.random.default_rng(seed)
+    T, sign, px = _roadside_sign(rng)
+    px = px + rng.normal(0.0, 0.5, px.shape)
+    wrong = rng.choice(len(px), size=max(1, len(px) // 6), replace=False)
+    px[wrong] += rng.choice([-1, 1], size=(len(wrong), 2)) * rng.uniform(25, 40, (len(wrong), 2))
+    with pytest.raises(ReprojectionError) as exc:
+        triangulate(T, px, K)
+    assert exc.value.residuals_px.shape == (len(px),) and exc.value.residuals_px.max() > 4.0
+    point, used = triangulate_inliers(T, px, K, min_inlier_share=0.7, min_inliers=3)
+    assert set(np.flatnonzero(~used)) == set(wrong.tolist())
+    assert np.linalg.norm(point.xyz_world - sign) < 0.3
+    assert point.p_cam.shape == (used.sum(), 3)
+    # Asked for more inliers than there are, the track stays rejected for its reprojection.
+    with pytest.raises(ReprojectionError):
+        triangulate_inliers(T, px, K, min_inlier_share=0.95, min_inliers=3)
+
+
+def test_a_track_that_fits_no_single_point_stays_rejected():
+    rng = np.random.default_rng(7)
+    T, sign, px = _roadside_sign(rng)
+    px = px + rng.normal(0.0, 12.0, px.shape)  # boxes scattered all over: a false track
+    with pytest.raises(TriangulationError):
+        triangulate_inliers(T, px, K, min_inlier_share=0.7, min_inliers=3)

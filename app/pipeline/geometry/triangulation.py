@@ -33,6 +33,15 @@ class TriangulationError(ValueError):
         self.reason = reason
 
 
+class ReprojectionError(TriangulationError):
+    """The refined point reprojects too far from the detections: ``residuals_px`` (M,) is each
+    observation's pixel distance from it."""
+
+    def __init__(self, reason: str, residuals_px: np.ndarray):
+        super().__init__(reason)
+        self.residuals_px = residuals_px
+
+
 # The iterative undistortion stops on a residual in normalised coordinates; 1e-12 there is far
 # below 1e-6 px, and strong barrel lenses need more than OpenCV's default 5 iterations at corners.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -149,8 +158,35 @@ def triangulate(T_world_cam: np.ndarray, px_undist: np.ndarray, K: np.ndarray, *
         raise TriangulationError(
             f"refinement diverged (moved {shift_m:.2f} m from the ray midpoint, std {std_m:.2f} m)")
     if rms_px > max_rms_px:
-        raise TriangulationError(f"reprojection rms {rms_px:.1f} px > {max_rms_px:.1f}")
+        raise ReprojectionError(f"reprojection rms {rms_px:.1f} px > {max_rms_px:.1f}",
+                                np.hypot(*r.reshape(-1, 2).T))
     return TriangulatedPoint(xyz, cov, std_m, rms_px, p_cam)
+
+
+def triangulate_inliers(T_world_cam: np.ndarray, px_undist: np.ndarray, K: np.ndarray, *,
+                        min_inlier_share: float, min_inliers: int, max_rms_px: float = 4.0,
+                        **options) -> tuple[TriangulatedPoint, np.ndarray]:
+    """``triangulate``, and while the point reprojects too far from the detections (a box on
+    the wrong object, a frame whose pose slipped), again without the worst one, as long as at
+    least ``min_inlier_share`` of the track and ``min_inliers`` observations are left. One at a
+    time because a few far boxes pull even the robust fit, so that its residuals alone do not
+    tell which boxes are wrong. Returns the point and the (M,) bool mask of the observations it
+    used; raises the first TriangulationError when no such subset fits."""
+    T_world_cam = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)
+    px = np.asarray(px_undist, dtype=float).reshape(-1, 2)
+    keep = np.ones(len(px), bool)
+    first: TriangulationError | None = None
+    while True:
+        try:
+            return triangulate(T_world_cam[keep], px[keep], K, max_rms_px=max_rms_px,
+                               **options), keep
+        except ReprojectionError as exc:
+            first = first or exc
+            if keep.sum() - 1 < max(min_inliers, min_inlier_share * len(px)):
+                raise first from None
+            keep[np.flatnonzero(keep)[np.argmax(exc.residuals_px)]] = False
+        except TriangulationError as exc:
+            raise (first or exc) from None
 
 
 def largest_std_m(cov_world: np.ndarray) -> float:

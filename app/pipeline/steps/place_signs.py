@@ -15,7 +15,8 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy
 from app.pipeline.geometry.facing import facing_deg
 from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError,
-                                                 largest_std_m, triangulate, undistort_pixels)
+                                                 largest_std_m, triangulate_inliers,
+                                                 undistort_pixels)
 from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
 from app.pipeline.steps import align
 from app.pipeline.types import (CameraModel, Journey, RejectedSign, Sign, SignObservation,
@@ -127,11 +128,14 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
         raise TriangulationError("its frames were not reconstructed")
     check_reconstruction(tp.alignment_rms_m, gps_noise_m, config)
     px = undistort_pixels(camera, track.px[tp.keep])
-    point = triangulate(tp.T_world_cam, px, camera.K, min_ray_angle_deg=config.min_ray_angle_deg,
-                        max_rms_px=config.max_reprojection_rms_px)
+    point, used = triangulate_inliers(
+        tp.T_world_cam, px, camera.K, min_ray_angle_deg=config.min_ray_angle_deg,
+        max_rms_px=config.max_reprojection_rms_px, min_inlier_share=config.min_inlier_share,
+        min_inliers=config.min_track_frames)
     if point.std_m > config.max_sign_std_m:
         raise TriangulationError(f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m")
-    return PlacedPass(point, tp.T_world_cam, track.frame_idx[tp.keep], tp.alignment_rms_m,
+    return PlacedPass(point, tp.T_world_cam[used], track.frame_idx[tp.keep][used],
+                      tp.alignment_rms_m,
                       GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n))
 
 
