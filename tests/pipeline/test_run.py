@@ -12,6 +12,7 @@ from app.pipeline.geometry.facing import angle_between_deg
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.run import process_journey
 from app.pipeline.types import CameraModel, PipelineError
+from tests.utils.journeys import synthetic_journey
 
 pytestmark = pytest.mark.slow
 
@@ -65,3 +66,25 @@ def test_straight_journey_needs_a_known_calibration(straight_journey_bundle, tmp
     assert result.calibration.source == "supplied"
     errors = _truth_errors(result, truth)
     assert errors and max(errors.values()) < 1.0, errors
+
+
+def test_a_long_journey_with_drifting_gps_does_not_drift_away_from_it(tmp_path_factory, tmp_path):
+    """Issue 12's drift, small: 300 frames (about 240 m) whose GPS bias wanders (0.3 m sigma,
+    correlated over seconds), with the true camera. Every stretch of trajectory is tied to the GPS
+    near it, so the error of the signs must not grow along the journey."""
+    bundle, truth = synthetic_journey(tmp_path_factory, "drift", turns=0, n_frames=300,
+                                      world_seed=4, seed=4, gps_bias_sigma_m=0.3)
+    journey = read_bundle(bundle, tmp_path / "bundle")
+    camera = CameraModel(**{k: truth["camera"][k] for k in
+                            ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")})
+    result = process_journey(journey, PipelineConfig(), tmp_path / "work", known_camera=camera)
+    errors = _truth_errors(result, truth)
+    assert len(errors) >= 0.75 * len(truth["signs"]), result.rejected
+    at = {f["frame"]: f["s_m"] for f in truth["frames"]}  # distance along the road
+    signs = {s.track_id: s for s in result.signs}
+    # (distance along the road where a sign was first seen, its error)
+    pts = np.array([(at[signs[t].observations[0].frame_id], e) for t, e in errors.items()])
+    slope_per_100m = 100.0 * np.polyfit(pts[:, 0], pts[:, 1], 1)[0]
+    assert pts[:, 0].max() - pts[:, 0].min() > 150.0, pts  # signs spread along the journey
+    assert np.median(pts[:, 1]) < 0.6 and pts[:, 1].max() < 1.2, errors
+    assert slope_per_100m < 0.25, (slope_per_100m, pts)
