@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.pipeline.steps import ego_motion, sign_tracks
-from app.pipeline.steps.place_signs import PlacedPass, combine, merge_fragments
+from app.pipeline.steps.place_signs import PlacedPass, TrackOutcome, combine, merge_fragments
 from app.pipeline.geometry.uncertainty import GeorefTerms
 from app.pipeline.geometry.triangulation import TriangulatedPoint
 from app.pipeline.types import CameraModel, Detection
@@ -186,17 +186,17 @@ def _frames_pass(xyz, frames) -> PlacedPass:
 
 
 def test_pieces_of_one_broken_track_are_merged_and_other_signs_are_not():
-    passes = {"auto-1": [_frames_pass([10.0, 5.0, 2.0], [10, 11, 12])],
-              "auto-0": [_frames_pass([10.4, 5.3, 2.1], [3, 4, 5])],      # the same sign, earlier
-              "auto-2": [_frames_pass([10.2, 5.1, 2.0], [11, 12, 13])],   # shares frames: another
-              "auto-3": [_frames_pass([10.1, 4.8, 2.0], [20, 21])],       # another class
-              "auto-4": [_frames_pass([13.0, 5.0, 2.0], [30, 31])],       # 3 m away
-              "auto-5": ["reprojection rms 9.0 px > 4.0"]}
+    passes = {"auto-1": TrackOutcome([_frames_pass([10.0, 5.0, 2.0], [10, 11, 12])]),
+              "auto-0": TrackOutcome([_frames_pass([10.4, 5.3, 2.1], [3, 4, 5])]),   # same, earlier
+              "auto-2": TrackOutcome([_frames_pass([10.2, 5.1, 2.0], [11, 12, 13])]),  # shares frames
+              "auto-3": TrackOutcome([_frames_pass([10.1, 4.8, 2.0], [20, 21])]),    # another class
+              "auto-4": TrackOutcome([_frames_pass([13.0, 5.0, 2.0], [30, 31])]),    # 3 m away
+              "auto-5": TrackOutcome([], ["reprojection rms 9.0 px > 4.0"])}
     classes = {"auto-0": "stop", "auto-1": "stop", "auto-2": "stop", "auto-3": "yield",
                "auto-4": "stop", "auto-5": "stop"}
     merged = merge_fragments(passes, classes, within_m=1.0)
     assert sorted(merged) == ["auto-0", "auto-2", "auto-3", "auto-4", "auto-5"]
-    assert [p.frame_idx.tolist() for p in merged["auto-0"]] == [[3, 4, 5], [10, 11, 12]]
+    assert [p.frame_idx.tolist() for p in merged["auto-0"].placed] == [[3, 4, 5], [10, 11, 12]]
     assert merge_fragments(passes, classes, within_m=0.1) == passes
 
 

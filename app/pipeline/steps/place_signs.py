@@ -7,7 +7,7 @@ aligned poses of its own frames, and the passes that succeed are combined. Frame
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,26 +35,34 @@ class PlacedPass:
     georef: GeorefTerms
 
 
+@dataclass
+class TrackOutcome:
+    """What became of a track's passes: those placed, and why the others could not be."""
+
+    placed: list[PlacedPass] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)
+
+
 def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journey: Journey,
                 origin: geodesy.LocalFrame, config: PipelineConfig
                 ) -> tuple[list[Sign], list[RejectedSign]]:
-    passes: dict[str, list[PlacedPass | str]] = {}
+    outcomes: dict[str, TrackOutcome] = {}
     classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
     for track in tracks:
+        outcome = outcomes.setdefault(track.track_id, TrackOutcome())
         try:
-            outcome: PlacedPass | str = place_pass(track, aligned, xyz_gps, camera, config,
-                                                   journey.gps_noise_m)
+            outcome.placed.append(place_pass(track, aligned, xyz_gps, camera, config,
+                                             journey.gps_noise_m))
         except TriangulationError as exc:
-            outcome = exc.reason
-        passes.setdefault(track.track_id, []).append(outcome)
-    passes = merge_fragments(passes, classes, config.merge_fragments_within_m)
+            outcome.reasons.append(exc.reason)
+    outcomes = merge_fragments(outcomes, classes, config.merge_fragments_within_m)
     signs: list[Sign] = []
     rejected: list[RejectedSign] = []
-    for track_id, outcomes in passes.items():
+    for track_id, outcome in outcomes.items():
         cls = classes[track_id]
-        placed = [p for p in outcomes if isinstance(p, PlacedPass)]
+        placed = outcome.placed
         if not placed:
-            rejected.append(RejectedSign(track_id, cls, "; ".join(dict.fromkeys(outcomes))))
+            rejected.append(RejectedSign(track_id, cls, "; ".join(dict.fromkeys(outcome.reasons))))
             continue
         xyz, cov_tri, rms_px, georef = combine(placed)
         # The gate is on the geometry alone: GPS noise is no reason to drop a well-seen sign.
@@ -70,11 +78,14 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
         p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
         lat, lon, alt = origin.to_geodetic(xyz[None, :])
         signs.append(Sign(
-            track_id, cls, xyz, float(lat[0]), float(lon[0]),
-            float(alt[0]) if journey.has_altitude else None, largest_std_m(cov_enu), rms_px,
-            [SignObservation(f, tuple(float(v) for v in p)) for f, p in zip(frame_ids, p_cam)],
-            facing_deg(xyz, T[:, :3, 3]), cov_enu, horizontal_radius_m(cov_enu),
-            SignUncertainty(cov_tri, georef),
+            track_id=track_id, cls=cls, xyz_enu=xyz, lat_deg=float(lat[0]),
+            lon_deg=float(lon[0]), alt_m=float(alt[0]) if journey.has_altitude else None,
+            std_m=largest_std_m(cov_enu), reprojection_rms_px=rms_px,
+            observations=[SignObservation(f, tuple(float(v) for v in p))
+                          for f, p in zip(frame_ids, p_cam)],
+            facing_deg=facing_deg(xyz, T[:, :3, 3]), cov_enu=cov_enu,
+            r95_h_m=horizontal_radius_m(cov_enu),
+            uncertainty=SignUncertainty(cov_triangulation_enu=cov_tri, georef=georef),
         ))
     return signs, rejected
 
@@ -86,9 +97,9 @@ def report(signs: list[Sign], rejected: list[RejectedSign]) -> StageReport:
                              for r in rejected))
 
 
-def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str, str],
-                    within_m: float) -> dict[str, list[PlacedPass | str]]:
-    """The passes of tracks that are one sign, joined under the id of the one seen first.
+def merge_fragments(outcomes: dict[str, TrackOutcome], classes: dict[str, str],
+                    within_m: float) -> dict[str, TrackOutcome]:
+    """The outcomes of tracks that are one sign, joined under the id of the one seen first.
 
     Tracks the pipeline associates itself (a bundle without track ids) break where the detector
     missed the sign for a few frames, and each piece would be placed as a sign of its own: on the
@@ -96,11 +107,11 @@ def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str
     one sign when they have the same class, never share a frame (one sign gives one box per
     frame) and their placed positions lie within ``within_m`` horizontally.
     """
-    placed = {t: [p for p in outs if isinstance(p, PlacedPass)] for t, outs in passes.items()}
-    ids = sorted((t for t in placed if placed[t]),
-                 key=lambda t: min(int(p.frame_idx.min()) for p in placed[t]))
-    xy = {t: combine(placed[t])[0][:2] for t in ids}
-    frames = {t: set(np.concatenate([p.frame_idx for p in placed[t]]).tolist()) for t in ids}
+    ids = sorted((t for t, o in outcomes.items() if o.placed),
+                 key=lambda t: min(int(p.frame_idx.min()) for p in outcomes[t].placed))
+    xy = {t: combine(outcomes[t].placed)[0][:2] for t in ids}
+    frames = {t: set(np.concatenate([p.frame_idx for p in outcomes[t].placed]).tolist())
+              for t in ids}
     into: dict[str, str] = {}
     for k, a in enumerate(ids):
         if a in into:
@@ -111,10 +122,12 @@ def merge_fragments(passes: dict[str, list[PlacedPass | str]], classes: dict[str
                 into[b] = a
                 frames[a] |= frames[b]
     if not into:
-        return passes
-    merged = {t: list(outs) for t, outs in passes.items() if t not in into}
+        return outcomes
+    merged = {t: TrackOutcome(list(o.placed), list(o.reasons))
+              for t, o in outcomes.items() if t not in into}
     for b, a in into.items():
-        merged[a] += passes[b]
+        merged[a].placed += outcomes[b].placed
+        merged[a].reasons += outcomes[b].reasons
     return merged
 
 
