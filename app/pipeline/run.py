@@ -140,7 +140,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                          workdir / f"sfm_calibrate_{window.frame_idx[0]}_{window.frame_idx[-1]}",
                          journey, window.frame_idx, step=step, front_end=config.calib_front_end,
                          config=config, xyz_gps=xyz_gps, verbose=verbose)
-        request = WindowRequest([names[i] for i in window.frame_idx], start, calibrate=True)
+        request = WindowRequest(image_names=[names[i] for i in window.frame_idx], camera=start,
+                                calibrate=True)
         return stage.run([request], None)[0]
 
     def on_candidate(k: int, total: int, window: CalibrationWindow) -> None:

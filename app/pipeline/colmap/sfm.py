@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 COLMAP_PIXEL_OFFSET = 0.5
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WindowRequest:
     """One window to map. ``camera``: the intrinsics to hold fixed, or with ``calibrate`` the
     starting point of self-calibration (its focal length and image size)."""

@@ -79,7 +79,7 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
     out = []
     for a, b in windows:
         idx = window_frames((a, b), step, extra)
-        out.append(WindowRequest([frame_names[i] for i in idx], camera,
+        out.append(WindowRequest(image_names=[frame_names[i] for i in idx], camera=camera,
                                  use_position_priors=position_priors,
                                  init_pair=_init_pair(list(range(a, b, step)), frame_names, step,
                                                       init_gap_frames)))
