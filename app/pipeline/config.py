@@ -109,8 +109,10 @@ class PipelineConfig(BaseModel):
     # Triangulation.
     min_track_frames: int = 3
     max_reprojection_rms_px: float = 4.0
+    # Corpus tuning half (seeds 0-14 even, true cameras, 2026-11-25): at 0.7, 97 of 97 mappable
+    # signs placed instead of 92, no false sign, abs p90 1.72 -> 1.50 m, rel mean 0.190 -> 0.194 m.
     min_inlier_share: float = Field(
-        1.0, description="a track reprojecting above max_reprojection_rms_px is placed again "
+        0.7, description="a track reprojecting above max_reprojection_rms_px is placed again "
                          "from the detections within that distance of its robust fit when they "
                          "are at least this share of it (1: never)")
     max_sign_std_m: float = 2.0
