@@ -21,6 +21,25 @@ CALIBRATION = {"ours": "self", "ours_alt": "self", "gt": "ground truth",
                "gt_alt": "ground truth", "naive": "naive (SIMPLE_RADIAL)"}
 
 
+# What each table's numbers mean, printed under its heading.
+NOTE_ATE = (
+    "ATE full and ATE-5: after a least-squares similarity onto the truth (over all posed frames / "
+    "every 5 consecutive frames); as georeferenced: the pipeline's own GPS alignment, no further "
+    "fit. Ours poses only the frames near signs.")
+NOTE_SIGNS = (
+    "Relative: camera-frame position error averaged over the observing frames; absolute: ENU "
+    "distance to the true plate centre. Mappable: true signs detected in at least "
+    "`min_track_frames` frames.")
+NOTE_SPEED = (
+    "Total: bundle extraction and pipeline, wall clock, one process per run. CPU s: user + system "
+    "time of the run and its children (less sensitive to other load on the machine). Peak MB: the "
+    "run's own peak RSS plus its largest child's (COLMAP runs in a child).")
+NOTE_BASELINES = (
+    "Errors over the signs both placed. The naive run may cover only the journey's first frames "
+    "(see the speed table); its cost grows faster than linearly, so the ratio understates the gap "
+    "on the whole journey.")
+
+
 def fmt(value, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
@@ -88,11 +107,7 @@ def table_ego_motion(report: dict) -> str:
                  fmt(PAPER_ATE["ate5_mean_m"], 4), fmt(PAPER_ATE["ate5_std_m"], 4), ""])
     header = ["journey", "calibration", "frames", "posed", "ATE full (m)", "ATE-5 mean (m)",
               "ATE-5 std (m)", "ATE as georeferenced (m)"]
-    return section(
-        "Table II: ego-motion ATE (camera centres vs truth)", header, rows,
-        "ATE full and ATE-5: after a least-squares similarity onto the truth (over all posed "
-        "frames / every 5 consecutive frames); as georeferenced: the pipeline's own GPS "
-        "alignment, no further fit. Ours poses only the frames near signs.")
+    return section("Table II: ego-motion ATE (camera centres vs truth)", header, rows, NOTE_ATE)
 
 
 def table_signs(report: dict) -> str:
@@ -106,11 +121,7 @@ def table_signs(report: dict) -> str:
                  "", fmt(PAPER_SIGNS["abs_mean_m"]), ""])
     header = ["journey", "calibration", "alignment", "signs / mappable", "rel mean (m)",
               "rel median (m)", "abs mean (m)", "abs median (m)"]
-    return section(
-        "Tables III/IV: sign positioning errors", header, rows,
-        "Relative: camera-frame position error averaged over the observing frames; absolute: "
-        "ENU distance to the true plate centre. Mappable: true signs detected in at least "
-        "`min_track_frames` frames.")
+    return section("Tables III/IV: sign positioning errors", header, rows, NOTE_SIGNS)
 
 
 def table_speed(report: dict) -> str:
@@ -122,12 +133,7 @@ def table_speed(report: dict) -> str:
                      fmt(run["peak_rss_mb"].get("total_mb"), 0)])
     header = ["journey", "variant", "frames", "stages (s)", "total (s)", "frames/s", "CPU s",
               "peak MB"]
-    return section(
-        "Speed and memory", header, rows,
-        "Total: bundle extraction and pipeline, wall clock, one process per run. CPU s: user + "
-        "system time of the run and its children (less sensitive to other load on the "
-        "machine). Peak MB: the run's own peak RSS plus its largest child's (COLMAP runs in "
-        "a child).")
+    return section("Speed and memory", header, rows, NOTE_SPEED)
 
 
 def table_baselines(report: dict) -> str:
@@ -141,11 +147,7 @@ def table_baselines(report: dict) -> str:
         return "### Ours vs naive COLMAP\n\nNo journey had both runs finish."
     header = ["journey", "ours frames/s", "naive frames/s", "speed ours/naive", "common signs",
               "abs mean ours / naive (m)", "rel mean ours / naive (m)"]
-    return section(
-        "Ours vs naive COLMAP", header, rows,
-        "Errors over the signs both placed. The naive run may cover only the journey's first "
-        "frames (see the speed table); its cost grows faster than linearly, so the ratio "
-        "understates the gap on the whole journey.")
+    return section("Ours vs naive COLMAP", header, rows, NOTE_BASELINES)
 
 
 def table_failures(report: dict) -> str:

@@ -14,6 +14,35 @@ from pathlib import Path
 from app.commands.usage import (EXIT_BAD_INPUT, EXIT_CODES_HELP, EXIT_OK, EXIT_PIPELINE_FAILED,
                                 HelpFormatter)
 
+DESCRIPTION = ("Runs the whole pipeline on one journey bundle: calibrates the camera on the "
+               "journey's turns, reconstructs its motion around each sign, aligns it to GPS and "
+               "triangulates the signs. Progress goes to stderr; the signs and a report are "
+               "written as files.")
+
+
+def add_parser(sub) -> None:
+    """``signmap process``."""
+    p = sub.add_parser("process", description=DESCRIPTION, epilog=EXIT_CODES_HELP,
+                       help="find the signs of one journey on this machine (no server needed)",
+                       formatter_class=HelpFormatter)
+    p.add_argument("bundle", help="the journey: a .zip of frames, GPS and sign detections as "
+                   "described in docs/journey-format.md")
+    p.add_argument("--out", default="signs.geojson",
+                   help="where to write the signs as GeoJSON (default: %(default)s)")
+    p.add_argument("--report", default=None,
+                   help="where to write the JSON report: calibration, timings, what each stage "
+                   "tried (and why it failed), uncertainty per sign, rejected tracks and why "
+                   "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
+    p.add_argument("--calibration", default=None, metavar="CAMERA.json",
+                   help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
+                   "needed for a journey without a turn to calibrate on")
+    p.add_argument("--workdir", default=None,
+                   help="keep the intermediate files (extracted frames, reconstructions) in this "
+                   "directory (default: a temporary one, deleted at the end)")
+    p.add_argument("--verbose", action="store_true", help="also show COLMAP's own log")
+    p.set_defaults(func=run_process)
+
+
 class BadInput(Exception):
     """A file given on the command line is missing, unreadable or not what it should be."""
 
@@ -109,30 +138,3 @@ def run_process(args) -> int:
     print(f"wrote {out} and {report_path}; stages: "
           + ", ".join(f"{k} {v:.1f}s" for k, v in result.timings_s.items()))
     return EXIT_OK
-
-
-def add_parser(sub) -> None:
-    """``signmap process``."""
-    p = sub.add_parser(
-        "process", help="find the signs of one journey on this machine (no server needed)",
-        description="Runs the whole pipeline on one journey bundle: calibrates the camera on the "
-        "journey's turns, reconstructs its motion around each sign, aligns it to GPS and "
-        "triangulates the signs. Progress goes to stderr; the signs and a report are written "
-        "as files.",
-        epilog=EXIT_CODES_HELP, formatter_class=HelpFormatter)
-    p.add_argument("bundle", help="the journey: a .zip of frames, GPS and sign detections as "
-                   "described in docs/journey-format.md")
-    p.add_argument("--out", default="signs.geojson",
-                   help="where to write the signs as GeoJSON (default: %(default)s)")
-    p.add_argument("--report", default=None,
-                   help="where to write the JSON report: calibration, timings, what each stage "
-                   "tried (and why it failed), uncertainty per sign, rejected tracks and why "
-                   "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
-    p.add_argument("--calibration", default=None, metavar="CAMERA.json",
-                   help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
-                   "needed for a journey without a turn to calibrate on")
-    p.add_argument("--workdir", default=None,
-                   help="keep the intermediate files (extracted frames, reconstructions) in this "
-                   "directory (default: a temporary one, deleted at the end)")
-    p.add_argument("--verbose", action="store_true", help="also show COLMAP's own log")
-    p.set_defaults(func=run_process)

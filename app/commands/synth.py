@@ -10,6 +10,46 @@ from pathlib import Path
 from app.synth.journey import SynthConfig, write_bundle
 
 
+def add_parser(sub) -> None:
+    """``signmap synth`` and ``signmap synth corpus``."""
+    p = sub.add_parser("synth", help="render a synthetic journey bundle plus its ground truth",
+                       description="Renders a synthetic journey (frames, GPS, detections) into "
+                       "OUT/bundle.zip and the true sign positions and camera into "
+                       "OUT/truth.json. `signmap synth corpus` renders a varied set of them.")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the journey's noise (GPS, camera shake, detection boxes): the "
+                   "same seed gives the same journey (default: %(default)s)")
+    p.add_argument("--frames", type=int, default=120,
+                   help="number of frames to render (default: %(default)s)")
+    p.add_argument("--turns", type=int, default=1,
+                   help="number of ~90 degree turns; 0 = a straight road (default: %(default)s)")
+    p.add_argument("--out", default=None,
+                   help="output directory for bundle.zip and truth.json (required)")
+    p.add_argument("--world-seed", type=int, default=None,
+                   help="seed of the road and sign layout (default: the value of --seed)")
+    p.add_argument("--low-texture", action="store_true", help="weak, low-contrast textures")
+    p.add_argument("--loop", action="store_true", help="a closed loop back to the start (4 turns)")
+    p.add_argument("--lateral-offset", type=float, default=0.0, metavar="METRES",
+                   help="drive this many metres right of the road centreline (default: 0)")
+    p.add_argument("--image-format", choices=["png", "jpg"], default=None,
+                   help="frame image format (default: png; jpg with --gps-format exif)")
+    p.add_argument("--gps-format", choices=["csv", "gpx", "exif"], default=None,
+                   help="how the bundle carries GPS: gps.csv, gps.gpx or EXIF tags in the frames "
+                   "(default: csv)")
+    synth_sub = p.add_subparsers(dest="synth_command", metavar="{corpus}")
+    c = synth_sub.add_parser("corpus", help="a varied corpus of journeys (cameras, lenses, turns, "
+                             "speeds, scenes, GPS receivers, detectors), each with its truth")
+    c.add_argument("--n", type=int, required=True, help="number of journeys")
+    c.add_argument("--seed", type=int, default=0,
+                   help="first journey's seed (journeys seed..seed+n-1; default: %(default)s)")
+    c.add_argument("--out", required=True, help="corpus directory (corpus.json, <name>/...)")
+    c.add_argument("--workers", type=int, default=1,
+                   help="journeys rendered in parallel (default: %(default)s)")
+    c.add_argument("--max-frames", type=int, default=None,
+                   help="cap on frames per journey (default 300)")
+    p.set_defaults(func=run_synth)
+
+
 def config_from_args(args) -> SynthConfig:
     """A SynthConfig from parsed ``signmap synth`` arguments (options not given keep defaults)."""
     opt = {
@@ -57,43 +97,3 @@ def run_synth(args) -> int:
     print(f"{bundle}\n{out / 'truth.json'}")
     print(f"{cfg.n_frames} frames in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
-
-
-def add_parser(sub) -> None:
-    """``signmap synth`` and ``signmap synth corpus``."""
-    p = sub.add_parser("synth", help="render a synthetic journey bundle plus its ground truth",
-                       description="Renders a synthetic journey (frames, GPS, detections) into "
-                       "OUT/bundle.zip and the true sign positions and camera into "
-                       "OUT/truth.json. `signmap synth corpus` renders a varied set of them.")
-    p.add_argument("--seed", type=int, default=0,
-                   help="seed of the journey's noise (GPS, camera shake, detection boxes): the "
-                   "same seed gives the same journey (default: %(default)s)")
-    p.add_argument("--frames", type=int, default=120,
-                   help="number of frames to render (default: %(default)s)")
-    p.add_argument("--turns", type=int, default=1,
-                   help="number of ~90 degree turns; 0 = a straight road (default: %(default)s)")
-    p.add_argument("--out", default=None,
-                   help="output directory for bundle.zip and truth.json (required)")
-    p.add_argument("--world-seed", type=int, default=None,
-                   help="seed of the road and sign layout (default: the value of --seed)")
-    p.add_argument("--low-texture", action="store_true", help="weak, low-contrast textures")
-    p.add_argument("--loop", action="store_true", help="a closed loop back to the start (4 turns)")
-    p.add_argument("--lateral-offset", type=float, default=0.0, metavar="METRES",
-                   help="drive this many metres right of the road centreline (default: 0)")
-    p.add_argument("--image-format", choices=["png", "jpg"], default=None,
-                   help="frame image format (default: png; jpg with --gps-format exif)")
-    p.add_argument("--gps-format", choices=["csv", "gpx", "exif"], default=None,
-                   help="how the bundle carries GPS: gps.csv, gps.gpx or EXIF tags in the frames "
-                   "(default: csv)")
-    synth_sub = p.add_subparsers(dest="synth_command", metavar="{corpus}")
-    c = synth_sub.add_parser("corpus", help="a varied corpus of journeys (cameras, lenses, turns, "
-                             "speeds, scenes, GPS receivers, detectors), each with its truth")
-    c.add_argument("--n", type=int, required=True, help="number of journeys")
-    c.add_argument("--seed", type=int, default=0,
-                   help="first journey's seed (journeys seed..seed+n-1; default: %(default)s)")
-    c.add_argument("--out", required=True, help="corpus directory (corpus.json, <name>/...)")
-    c.add_argument("--workers", type=int, default=1,
-                   help="journeys rendered in parallel (default: %(default)s)")
-    c.add_argument("--max-frames", type=int, default=None,
-                   help="cap on frames per journey (default 300)")
-    p.set_defaults(func=run_synth)
