@@ -80,6 +80,10 @@ class _Entry:
     summary: str = ""
     details: list[str] = field(default_factory=list)
 
+    def take(self, report: StageReport) -> None:
+        """Use what a step's own report says."""
+        self.summary, self.details = report.summary, list(report.details)
+
 
 class _Journal:
     """One StageReport per stage that ran, in order; a PipelineError leaving a stage carries them
@@ -123,8 +127,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     t0 = time.perf_counter()
     with journal.stage("turns") as entry:
         the_plan = plan.plan_journey(journey, xyz_gps, config, known_camera)
-        planned = plan.report(the_plan, config)
-        entry.summary, entry.details = planned.summary, list(planned.details)
+        entry.take(plan.report(the_plan, config))
     clock = _Clock(progress, _stage_weights(config.calib_images * bool(the_plan.calib_windows),
                                             len(the_plan.ego_frames)))
     clock.finished("turns", time.perf_counter() - t0)
@@ -177,8 +180,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
         poses = ego_motion.window_poses(ego_windows, results, names)
-        mapped = ego_motion.report(ego_windows, results, poses)
-        entry.summary, entry.details = mapped.summary, list(mapped.details)
+        entry.take(ego_motion.report(ego_windows, results, poses))
         if not poses:
             raise PipelineError("ego_motion", "no window around the signs could be "
                                 "reconstructed: " + "; ".join(r.error or "too few frames registered"
@@ -192,8 +194,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m),
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
-        aligned_report = align.report(len(poses), aligned, dropped)
-        entry.summary, entry.details = aligned_report.summary, list(aligned_report.details)
+        entry.take(align.report(len(poses), aligned, dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                                 "(the GPS track does not move enough around the signs)")
