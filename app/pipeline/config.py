@@ -21,7 +21,14 @@ class PipelineConfig(BaseModel):
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
     # 44 frames at 10 Hz and 8 m/s (turn-70) spanned 35 m: the span that calibrated there.
-    calib_window_m: float = Field(36.0, description="road a calibration candidate spans, metres")
+    calib_window_m: float = Field(36.0, description="road a calibration candidate spans beyond "
+                                  "its turn's curve, metres")
+    # A candidate of fixed length saw 35-46 deg of 80-141 deg turns of 45-60 m radius, and those
+    # calibrations were 2-5 % off in f (tuning half, 2026-11-25): a window now spans the curve too.
+    calib_window_max_m: float = Field(120.0, description="longest road a candidate spans, metres")
+    calib_rotation_share: float = Field(
+        0.0, ge=0.0, le=1.0, description="share of a candidate's images spread by the heading "
+        "change of the GPS track rather than by distance (0: by distance only)")
     calib_images: int = Field(22, description="images a calibration candidate maps, spread by "
                               "distance travelled")
     calib_min_images: int = Field(

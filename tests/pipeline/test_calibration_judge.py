@@ -97,6 +97,51 @@ def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
     assert len(frames) == cfg.calib_min_images
 
 
+@pytest.mark.parametrize("radius_m, turn_deg", [(50.0, 141.0), (60.0, 80.0), (6.0, 82.0)])
+def test_the_first_window_covers_a_wide_curve_not_only_part_of_it(radius_m, turn_deg):
+    # Windows of fixed length saw 35-46 deg of 80-141 deg turns of 45-60 m radius, and those
+    # calibrations were 2-5 % off in f (tuning half, 2026-11-25).
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import find_turns, track_length_m
+
+    step_m = 0.5
+    theta = np.arange(0.0, np.radians(turn_deg), step_m / radius_m)
+    heading = np.concatenate([np.zeros(120), theta, np.full(120, theta[-1])])
+    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    cfg = PipelineConfig()
+    (turn,) = find_turns(xy)
+    assert turn.curve_m == pytest.approx(radius_m * np.radians(turn_deg), rel=0.5, abs=10.0)
+    frames = candidate_windows([turn], track_length_m(xy), cfg)[0].frame_idx
+    seen_deg = np.degrees(heading[frames[-1]] - heading[frames[0]])
+    assert seen_deg >= 0.85 * turn_deg
+    assert len(frames) == cfg.calib_images
+
+
+def test_images_spread_by_heading_change_crowd_into_a_sharp_turn():
+    # A U-turn of 7 m radius: by distance alone a 22-image window puts few images in it, each
+    # a large rotation from the next.
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import cumulative_rotation_deg, find_turns, track_length_m
+
+    step_m, radius_m = 0.7, 7.0
+    theta = np.arange(0.0, np.pi, step_m / radius_m)
+    heading = np.concatenate([np.zeros(80), theta, np.full(80, theta[-1])])
+    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    s_m = track_length_m(xy)
+    turns = find_turns(xy)
+    rot_deg = cumulative_rotation_deg(xy, s_m)
+
+    curve = np.flatnonzero(np.diff(heading) > 0)
+
+    def images_in_the_turn(share: float) -> int:
+        cfg = PipelineConfig(calib_rotation_share=share)
+        frames = candidate_windows(turns, s_m, cfg, rot_deg)[0].frame_idx
+        assert len(frames) == cfg.calib_images
+        return int(np.sum((frames >= curve[0]) & (frames <= curve[-1] + 1)))
+
+    assert images_in_the_turn(0.5) >= 1.4 * images_in_the_turn(0.0)
+
+
 def _search(results: list[WindowResult]):
     """Run the candidate search over made-up windows; returns (calibration or error, windows tried)."""
     from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from app.pipeline.steps.turns import TurnWindow, find_turns, total_rotation_deg
+from app.pipeline.steps.turns import (TurnWindow, cumulative_rotation_deg, find_turns,
+                                      smooth_track, total_rotation_deg, track_length_m)
 
 
 def _leg(start, heading_deg: float, length_m: float, step_m: float = 1.0) -> np.ndarray:
@@ -178,3 +179,17 @@ def test_smoothing_keeps_phone_gps_noise_from_making_or_hiding_turns(seed):
     t_c = np.arange(len(corner)) / 10.0
     found = find_turns(smooth_track(_phone_gps(corner, 2.5, seed), t_c, 1.0))
     assert len(found) == 1 and 60.0 < abs(found[0].angle_deg) < 120.0
+
+
+def test_cumulative_rotation_follows_a_u_turn_and_ignores_a_standing_car():
+    rng = np.random.default_rng(3)
+    theta = np.arange(0.0, np.pi, 0.5 / 7.0)
+    heading = np.concatenate([np.zeros(120), theta, np.full(120, theta[-1])])
+    xy = np.cumsum(0.5 * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    # 8 s standing with 0.3 m GPS jitter before the turn, 25 Hz.
+    xy = np.vstack([xy[:100], xy[100] + rng.normal(0.0, 0.3, (200, 2)), xy[100:]])
+    xy = smooth_track(xy, np.arange(len(xy)) / 25.0, 1.0)
+    rot_deg = cumulative_rotation_deg(xy, track_length_m(xy))
+    assert np.all(np.diff(rot_deg) >= 0)
+    assert rot_deg[-1] == pytest.approx(180.0, abs=15.0)
+    assert rot_deg[299] < 30.0  # before the turn, standing included

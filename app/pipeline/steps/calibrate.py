@@ -54,25 +54,35 @@ class CalibrationWindow:
         return f"frames {int(self.frame_idx[0])}-{int(self.frame_idx[-1])}"
 
 
-def _frames_by_distance(s_m: np.ndarray, lo_m: float, hi_m: float, n_images: int) -> np.ndarray:
-    """Up to ``n_images`` frames spread evenly by distance travelled over [lo_m, hi_m]; a frame
-    is taken once however long the car stands on it."""
-    targets_m = np.linspace(lo_m, hi_m, n_images)
-    idx = np.clip(np.searchsorted(s_m, targets_m, side="left"), 0, len(s_m) - 1)
+def _spread_frames(s_m: np.ndarray, rot_deg: np.ndarray, lo_m: float, hi_m: float,
+                   n_images: int, rotation_share: float) -> np.ndarray:
+    """Up to ``n_images`` frames spread evenly over [lo_m, hi_m] of road by a mix of distance
+    travelled and heading change (``rotation_share`` of the weight); a frame is taken once however
+    long the car stands on it. By distance alone, a sharp turn taken fast fell between a few
+    images 20 deg apart."""
+    at_m = np.interp([lo_m, hi_m], s_m, rot_deg)
+    u = (s_m - lo_m) / max(hi_m - lo_m, 1e-9)
+    if rotation_share > 0 and at_m[1] - at_m[0] > 1.0:
+        u = (1 - rotation_share) * u + rotation_share * (rot_deg - at_m[0]) / (at_m[1] - at_m[0])
+    idx = np.clip(np.searchsorted(u, np.linspace(0.0, 1.0, n_images), side="left"),
+                  0, len(s_m) - 1)
     return np.unique(idx)
 
 
-def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray,
-                      cfg: PipelineConfig) -> list[CalibrationWindow]:
+def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineConfig,
+                      rot_deg: np.ndarray | None = None) -> list[CalibrationWindow]:
     """Candidate windows, strongest turn first, at most ``calib_max_candidates``.
 
-    ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``). A window spans
-    ``calib_window_m`` of road, or more where frames are so far apart that it would hold fewer
-    than ``calib_min_images``; its ``calib_images`` frames are spread by distance, not by frame
-    count, so capture rate, speed and stops do not change what a window sees (a fixed 44 frames
+    ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``); ``rot_deg`` (N,):
+    heading change accumulated up to each frame (``turns.cumulative_rotation_deg``). A window spans
+    ``calib_window_m`` of road beyond its turn's curve (up to ``calib_window_max_m``), or more where
+    frames are so far apart that it would hold fewer than ``calib_min_images``; its
+    ``calib_images`` frames are spread by distance and heading change, not by frame count, so
+    capture rate, speed and stops do not change what a window sees (a fixed 44 frames
     spanned 13 m at 20 Hz and 6 m/s, where only 3 of 22 images registered, and 105 m at 5 Hz and
     12 m/s; 2026-11-24)."""
     s_m = np.asarray(s_m, float)
+    rot_deg = np.zeros_like(s_m) if rot_deg is None else np.asarray(rot_deg, float)
     ranked = sorted(turns, key=lambda t: -max(abs(t.angle_deg), t.rotation_deg))
     out: list[CalibrationWindow] = []
     seen: set[tuple[int, ...]] = set()
@@ -80,10 +90,12 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray,
         for turn in ranked:
             moving = np.diff(s_m[turn.start:turn.end])
             step_m = float(np.median(moving[moving > 0])) if np.any(moving > 0) else 0.0
-            span_m = min(max(cfg.calib_window_m, (cfg.calib_min_images - 1) * step_m),
+            span_m = min(max(min(cfg.calib_window_m + turn.curve_m, cfg.calib_window_max_m),
+                             (cfg.calib_min_images - 1) * step_m),
                          float(s_m[-1] - s_m[0]))
             lo_m = float(np.clip(s_m[turn.vertex] + offset * span_m, s_m[0], s_m[-1] - span_m))
-            frames = _frames_by_distance(s_m, lo_m, lo_m + span_m, cfg.calib_images)
+            frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, cfg.calib_images,
+                                    cfg.calib_rotation_share)
             key = tuple(frames.tolist())
             if len(frames) >= cfg.calib_min_images and key not in seen:
                 seen.add(key)

@@ -43,7 +43,8 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                                     min_angle_deg=config.turn_min_angle_deg,
                                     window_m=config.turn_window_m)
     s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
-    calib_windows = calibrate.candidate_windows(turn_windows, s_m, config)
+    calib_windows = calibrate.candidate_windows(
+        turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m))
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.

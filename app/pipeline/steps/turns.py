@@ -27,6 +27,9 @@ class TurnWindow:
     # Sum of |heading changes| of the turns in the window: differs from |angle_deg| when merged
     # turns of opposite directions (an S-bend) cancel in angle_deg but still rotate the camera.
     rotation_deg: float = 0.0
+    # Track length between the first and the last corner of the turn (0 for a single corner): a
+    # wide curve turns over this much road, and a window of fixed length sees only part of it.
+    curve_m: float = 0.0
 
 
 # GPS jitter of a standing car that exceeds the tolerance survives simplification as a knot of
@@ -149,7 +152,8 @@ def find_turns(xy_m: np.ndarray, *, tolerance_m: float = 2.0, min_angle_deg: flo
     each other, i.e. a smooth curve, whose vertex is then its middle frame) is a turn when its
     heading change reaches ``min_angle_deg``.
     Its window holds the frames within ``window_m`` of track length before its first and after its
-    last corner; overlapping windows are merged (angles summed, vertex of the larger turn kept).
+    last corner; overlapping windows are merged (angles summed, vertex and curve length of the
+    larger turn kept).
     """
     track = _simplify(xy_m, tolerance_m)
     n = len(track.s_m)
@@ -168,16 +172,17 @@ def find_turns(xy_m: np.ndarray, *, tolerance_m: float = 2.0, min_angle_deg: flo
             mid_m = 0.5 * (s_v[group[0]] + s_v[group[-1]])
             vertex = int(np.searchsorted(track.s_m, mid_m, side="left"))
         rotation = float(np.sum(np.abs(track.turn_deg[group])))
-        windows.append(TurnWindow(start, min(end, n), vertex, angle, rotation))
+        windows.append(TurnWindow(start, min(end, n), vertex, angle, rotation,
+                                  float(s_v[group[-1]] - s_v[group[0]])))
 
     merged: list[TurnWindow] = []
     for w in windows:  # already in track order
         if merged and w.start < merged[-1].end:
             prev = merged[-1]
-            vertex = prev.vertex if abs(prev.angle_deg) >= abs(w.angle_deg) else w.vertex
-            merged[-1] = TurnWindow(prev.start, max(prev.end, w.end), vertex,
+            larger = prev if abs(prev.angle_deg) >= abs(w.angle_deg) else w
+            merged[-1] = TurnWindow(prev.start, max(prev.end, w.end), larger.vertex,
                                     prev.angle_deg + w.angle_deg,
-                                    prev.rotation_deg + w.rotation_deg)
+                                    prev.rotation_deg + w.rotation_deg, larger.curve_m)
         else:
             merged.append(w)
     return sorted(merged, key=lambda w: -abs(w.angle_deg))
@@ -204,6 +209,25 @@ def track_length_m(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> np.ndarray:
     """(N,) metres travelled at each frame of ``xy_m`` (N, 2), along the simplified track: monotone,
     flat while the car stands, free of the length GPS jitter would add."""
     return _simplify(xy_m, tolerance_m).s_m
+
+
+def cumulative_rotation_deg(xy_m: np.ndarray, s_m: np.ndarray, *, step_m: float = 1.0,
+                            smooth_m: float = 3.0) -> np.ndarray:
+    """(N,) degrees of heading change, whatever the direction, accumulated along ``xy_m`` (N, 2)
+    up to each frame; ``s_m`` (N,) is its ``track_length_m``. The heading is taken on the track
+    resampled every ``step_m`` of length and smoothed over ``smooth_m``, so a standing car turns
+    nothing and a sharp corner turns over the metres it takes, not at one frame."""
+    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    s_m = np.asarray(s_m, dtype=float)
+    if len(xy_m) < 2 or s_m[-1] - s_m[0] < 2 * step_m:
+        return np.zeros(len(xy_m))
+    first = np.r_[True, np.diff(s_m) > 0]  # one position per track length
+    grid_m = np.arange(s_m[0], s_m[-1] + step_m, step_m)
+    xy_grid = np.column_stack([np.interp(grid_m, s_m[first], xy_m[first, k]) for k in (0, 1)])
+    xy_grid = gaussian_filter1d(xy_grid, smooth_m / step_m, axis=0, mode="nearest")
+    heading = np.unwrap(np.arctan2(*np.gradient(xy_grid, axis=0).T[::-1]))
+    turned = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(heading)))])
+    return np.degrees(np.interp(s_m, grid_m, turned))
 
 
 def total_rotation_deg(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> float:
