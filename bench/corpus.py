@@ -102,8 +102,12 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
 
 
-def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool,
-                   min_track_frames: int) -> dict:
+# Issue 12's recall rule: a sign detected in at least 5 frames with a box at least 12 px tall must
+# be placed. Until 2026-11-25 the corpus counted signs of min_track_frames (3) under that label.
+RECALL_MIN_FRAMES = 5
+
+
+def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool) -> dict:
     """The JSON record of one journey's run."""
     record = {"kind": "journey", "name": entry["name"], "half": entry.get("half"),
               "seed": entry.get("seed"), "params": entry.get("params", {}),
@@ -116,7 +120,7 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
     record["calibration"] = calibration_record(out.result, truth["camera"])
     if not calibrate_only and truth.get("signs"):
         ev = evaluate_result(out.result, truth)
-        mappable = mappable_ids(truth, min_track_frames)
+        mappable = mappable_ids(truth, RECALL_MIN_FRAMES)
         found = {e["truth_id"] for e in ev["sign_errors"].values()}
         record["signs"] = {**ev["signs"], "n_truth": len(truth["signs"]),
                            "n_mappable": len(mappable),
@@ -160,8 +164,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
         except Exception as exc:  # noqa: BLE001 - e.g. an unreadable bundle: raised in the child
             out = RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
                             time.perf_counter() - t0, {}, {})
-    return journey_record(entry, out, truth, calibrate_only=calibrate_only,
-                          min_track_frames=config.min_track_frames)
+    return journey_record(entry, out, truth, calibrate_only=calibrate_only)
 
 
 def read_jsonl(path: Path) -> tuple[dict | None, list[dict]]:
