@@ -53,6 +53,10 @@ class PipelineConfig(BaseModel):
     calib_aspect_prior_sigma: float = Field(
         0.005, description="stage 2: prior that pixels are square (fx = fy), relative sigma; "
         "0 leaves fx and fy to the data alone")
+    calib_require_agreement: bool = Field(
+        False, description="accept a calibration only when two windows agree on it (never on "
+        "one window's reprojection error alone); windows after the first usable one start "
+        "from its camera")
     calib_agreement: float = Field(
         0.015, description="two candidate windows whose focal lengths agree to this fraction "
         "(principal points to this fraction of the width) end the search")

@@ -279,7 +279,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     # The database holds one camera; give this window its own copy with the known intrinsics
-    # (fixed) or the stage-1 starting point (one focal, centred principal point, k1 = 0).
+    # (fixed) or the stage-1 starting point (one focal, centred principal point, k1).
     db_path = out / "window.db"
     shutil.copyfile(database, db_path)
     with pycolmap.Database.open(db_path) as db:
@@ -288,7 +288,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                 c = window.camera
                 new = pycolmap.Camera(model="SIMPLE_RADIAL", width=c.width, height=c.height,
                                       params=[c.fx, c.cx + COLMAP_PIXEL_OFFSET,
-                                              c.cy + COLMAP_PIXEL_OFFSET, 0.0])
+                                              c.cy + COLMAP_PIXEL_OFFSET, c.k1])
             else:
                 new = _colmap_camera(pycolmap, window.camera)
             new.camera_id = cam.camera_id

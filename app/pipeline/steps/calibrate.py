@@ -110,6 +110,14 @@ def initial_camera(width: int, height: int, cfg: PipelineConfig,
     return CameraModel(width, height, f, f, (width - 1) / 2, (height - 1) / 2, 0.0, 0.0)
 
 
+def seeded_start(camera: CameraModel) -> CameraModel:
+    """Stage-1 starting point taken from a candidate's camera: its mean focal length and k1,
+    the principal point centred as stage 1 holds it."""
+    f = 0.5 * (camera.fx + camera.fy)
+    w, h = camera.width, camera.height
+    return CameraModel(w, h, f, f, (w - 1) / 2, (h - 1) / 2, camera.k1, 0.0)
+
+
 def rotation_covered_deg(T_model_cam: np.ndarray) -> float:
     """Largest rotation of any registered camera relative to the first, degrees."""
     if len(T_model_cam) < 2:
@@ -213,7 +221,8 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             reasons.append(f"{window.label}: {why}")
             trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
-        if res.reprojection_error_px <= cfg.calib_accept_reprojection_px:
+        if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
+                and not cfg.calib_require_agreement):
             chosen, evidence = [(window, res)], "reprojection"
             trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
@@ -229,8 +238,14 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                           f"{agreeing[0][0].label}")
             break
         good.append((window, res))
-        trials.append(f"{_trial(window, res)}: above {cfg.calib_accept_reprojection_px:g} px, "
-                      "kept until another window agrees")
+        if cfg.calib_require_agreement:
+            # A start near the camera lets a later window register where the wide guess did
+            # not; a wrong camera is no minimum of other frames, so they do not agree with it.
+            start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
+        trials.append(f"{_trial(window, res)}: "
+                      + ("" if cfg.calib_require_agreement else
+                         f"above {cfg.calib_accept_reprojection_px:g} px, ")
+                      + "kept until another window agrees")
         reasons.append(f"{window.label}: {res.reprojection_error_px:.2f} px and no other window "
                        f"agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
     if not chosen:
