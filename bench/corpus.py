@@ -21,7 +21,7 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report
 from bench.evaluate import truth_id
-from bench.metrics import calibration_summary, evaluate_result, mappable_ids
+from bench.metrics import RECALL_MIN_FRAMES, calibration_summary, evaluate_result, mappable_ids
 from bench.run_pipeline import RunOutput, RunTask, run_isolated
 from bench.runner import run_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
@@ -100,11 +100,6 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "evidence": cal.evidence,
             "n_images": cal.n_images, "n_registered": cal.n_registered,
             "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
-
-
-# Issue 12's recall rule: a sign detected in at least 5 frames with a box at least 12 px tall must
-# be placed. Until 2026-11-25 the corpus counted signs of min_track_frames (3) under that label.
-RECALL_MIN_FRAMES = 5
 
 
 def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool) -> dict:

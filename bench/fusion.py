@@ -32,7 +32,8 @@ from app.service.db import map_rows
 from app.service.jobs import fusion
 from app.service.db.models import JourneyRow, JourneySignRow
 from app.synth.journey import SynthConfig
-from bench import plots
+from bench import metrics, plots
+from bench.evaluate import truth_id
 from bench.metrics import truth_frame
 from bench.run_pipeline import RunTask, run_isolated
 from bench.runner import run_meta, finite, log, run_summary
@@ -217,9 +218,13 @@ def order_difference(a: list[MapSign], b: list[MapSign], truth: dict) -> dict:
 
 
 def mappable_ids(runs: list[JourneyRun], min_frames: int) -> set[str]:
-    """True signs detected in at least ``min_frames`` frames of at least one of the journeys."""
-    return {str(s["track_id"]) for r in runs for s in r.truth["signs"]
-            if len({o["frame"] for o in s["observations"]}) >= min_frames}
+    """Track ids of the true signs that must be mapped: by ``bench.metrics.mappable_ids``
+    (``min_frames`` frames with a box of at least 12 px) in at least one of the journeys."""
+    out: set[str] = set()
+    for r in runs:
+        ids = set(metrics.mappable_ids(r.truth, min_frames))
+        out |= {str(s["track_id"]) for s in r.truth["signs"] if truth_id(s) in ids}
+    return out
 
 
 def fusion_row(runs: list[JourneyRun], config: FusionConfig, min_frames: int) -> dict:
@@ -259,7 +264,7 @@ def table_fusion(rows: list[dict]) -> str:
              fmt(r["single_abs_median_m"]), r["n_biased_flagged"],
              f"{fmt(r['reversed']['max_diff_m'], 4)} ({r['reversed']['n_only_one_order']})"]
             for r in rows]
-    header = ["journeys", "ok", "map signs", "true signs mapped / mappable", "duplicates",
+    header = ["journeys", "ok", "map signs", "true signs mapped / mappable (≥ 5 frames, ≥ 12 px)", "duplicates",
               "mixed", "abs median (m)", "abs mean (m)", "horiz median (m)", "horiz mean (m)",
               "single-journey abs mean (m)", "single-journey abs median (m)", "flagged biased",
               "reversed order: max Δ (m) (signs in one map only)"]
@@ -355,7 +360,7 @@ def run_fusion(*, quick: bool, out_dir: Path, cache_dir: Path) -> tuple[Path, Pa
     def update(complete: bool) -> None:
         report["journeys"] = {r.name: r.record for r in runs}
         report["n_signs_truth"] = len(runs[0].truth["signs"])
-        report["rows"] = fusion_rows(runs, fusion_config, base.min_track_frames)
+        report["rows"] = fusion_rows(runs, fusion_config, metrics.RECALL_MIN_FRAMES)
         report["bar"]["verdict"] = bar_verdict(report["rows"])
         report["meta"]["wall_s"] = round(time.perf_counter() - t0, 1)
         report["meta"]["complete"] = complete

@@ -96,6 +96,11 @@ def trajectory_metrics(result: JourneyResult, truth: dict) -> dict[str, float]:
     }
 
 
+# Issue 12's recall rule: a sign detected in at least 5 frames with a box at least 12 px tall must
+# be placed. Until 2026-11-25 the corpus and fusion benches counted signs of min_track_frames (3).
+RECALL_MIN_FRAMES = 5
+
+
 def mappable_ids(truth: dict, min_frames: int, min_height_px: float = 12.0) -> list[str]:
     """Ids of the true signs the pipeline must place: detected (not missed) in at least
     ``min_frames`` frames with a box at least ``min_height_px`` tall."""
