@@ -24,10 +24,14 @@ class PipelineConfig(BaseModel):
     calib_window_m: float = Field(36.0, description="road a calibration candidate spans beyond "
                                   "its turn's curve, metres")
     # A candidate of fixed length saw 35-46 deg of 80-141 deg turns of 45-60 m radius, and those
-    # calibrations were 2-5 % off in f (tuning half, 2026-11-25): a window now spans the curve too.
-    calib_window_max_m: float = Field(120.0, description="longest road a candidate spans, metres")
+    # calibrations were 2-5 % off in f; but windows spanning the whole curve (up to 120 m, 22
+    # images) fell into more wrong minima: 3 accepted 5-39 % off instead of 1 (tuning half of the
+    # 64-journey corpus, 2026-11-25, bench/results/2026-11-25-calib-windows.md). Above 36 m = on.
+    calib_window_max_m: float = Field(36.0, description="longest road a candidate spans, metres")
+    # 0.5 on the tuning half: a 180 deg U-turn at 17 m/s calibrated (13/22 registered before),
+    # fx p90 1.26 -> 1.03 %, k1 p90 11 -> 7 %; one more journey within every bar.
     calib_rotation_share: float = Field(
-        0.0, ge=0.0, le=1.0, description="share of a candidate's images spread by the heading "
+        0.5, ge=0.0, le=1.0, description="share of a candidate's images spread by the heading "
         "change of the GPS track rather than by distance (0: by distance only)")
     calib_images: int = Field(22, description="images a calibration candidate maps, spread by "
                               "distance travelled")
