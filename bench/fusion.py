@@ -264,8 +264,8 @@ def table_fusion(rows: list[dict]) -> str:
              fmt(r["single_abs_median_m"]), r["n_biased_flagged"],
              f"{fmt(r['reversed']['max_diff_m'], 4)} ({r['reversed']['n_only_one_order']})"]
             for r in rows]
-    header = ["journeys", "ok", "map signs", "true signs mapped / mappable (≥ 5 frames, ≥ 12 px)", "duplicates",
-              "mixed", "abs median (m)", "abs mean (m)", "horiz median (m)", "horiz mean (m)",
+    header = ["journeys", "ok", "map signs", "true signs mapped / mappable (≥ 5 frames, ≥ 12 px)",
+              "duplicates", "mixed", "abs median (m)", "abs mean (m)", "horiz median (m)", "horiz mean (m)",
               "single-journey abs mean (m)", "single-journey abs median (m)", "flagged biased",
               "reversed order: max Δ (m) (signs in one map only)"]
     return md_table(header, body)

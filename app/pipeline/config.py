@@ -34,7 +34,7 @@ class PipelineConfig(BaseModel):
         0.5, ge=0.0, le=1.0, description="share of a candidate's images spread by the heading "
         "change of the GPS track rather than by distance (0: by distance only)")
     calib_images: int = Field(22, description="images a calibration candidate maps, spread by "
-                              "distance travelled")
+                              "distance travelled and heading change (calib_rotation_share)")
     calib_min_images: int = Field(
         12, description="fewest images a candidate maps: where frames are further apart than "
         "calib_window_m / calib_min_images, the window grows")

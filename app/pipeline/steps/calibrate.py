@@ -107,15 +107,18 @@ def initial_camera(width: int, height: int, cfg: PipelineConfig,
                    hint: CameraModel | None = None) -> CameraModel:
     """Stage-1 starting point: the manifest's hint if any, else a wide dash-cam guess."""
     f = hint.fx if hint is not None else cfg.calib_initial_focal_factor * width
-    return CameraModel(width, height, f, f, (width - 1) / 2, (height - 1) / 2, 0.0, 0.0)
+    return _stage1_start(width, height, f, 0.0)
 
 
 def seeded_start(camera: CameraModel) -> CameraModel:
-    """Stage-1 starting point taken from a candidate's camera: its mean focal length and k1,
-    the principal point centred as stage 1 holds it."""
-    f = 0.5 * (camera.fx + camera.fy)
-    w, h = camera.width, camera.height
-    return CameraModel(w, h, f, f, (w - 1) / 2, (h - 1) / 2, camera.k1, 0.0)
+    """Stage-1 starting point taken from a candidate's camera: its mean focal length and k1."""
+    return _stage1_start(camera.width, camera.height, 0.5 * (camera.fx + camera.fy), camera.k1)
+
+
+def _stage1_start(width: int, height: int, f: float, k1: float) -> CameraModel:
+    """What stage 1 can start from: one focal length, k1, the principal point centred as stage 1
+    holds it."""
+    return CameraModel(width, height, f, f, (width - 1) / 2, (height - 1) / 2, k1, 0.0)
 
 
 def rotation_covered_deg(T_model_cam: np.ndarray) -> float:
