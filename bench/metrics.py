@@ -141,9 +141,12 @@ def calibration_summary(cal: Calibration, errors: Callable[[dict], dict], *, cam
     """The estimated camera and its stage-1 start with their ``errors(params)``; the key names
     are those of the JSON the bench (``final``, ``errors_pct``) or the corpus bench writes."""
     stage1 = cal.stage1.params() if cal.stage1 is not None else None
+    single = cal.single_window.params() if cal.single_window is not None else None
     return {"source": cal.source, camera_key: cal.camera.params(),
             errors_key: errors(cal.camera.params()), "stage1": stage1,
             f"stage1_{errors_key}": errors(stage1) if stage1 else None,
+            # Before the joint stage 2 over two windows (``calib_joint``): what it changed.
+            f"single_window_{errors_key}": errors(single) if single else None,
             "reprojection_error_px": float(cal.reprojection_error_px)}
 
 

@@ -61,6 +61,9 @@ class PipelineConfig(BaseModel):
         False, description="accept a calibration only when two windows agree on it (never on "
         "one window's reprojection error alone); windows after the first usable one start "
         "from its camera")
+    calib_joint: bool = Field(
+        False, description="after a window is accepted, map one more (another turn first) with "
+        "its camera held and refine all intrinsics over both windows at once")
     calib_agreement: float = Field(
         0.015, description="two candidate windows whose focal lengths agree to this fraction "
         "(principal points to this fraction of the width) end the search")

@@ -135,17 +135,27 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
              len(journey.frames), len(the_plan.turns), len(tracks), len(ego_windows))
 
-    def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
+    def calibrate_stage(window: CalibrationWindow, kind: str) -> StageSfm:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
         # the first candidate usually succeeds, and the others' features would be wasted.
         step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
-        stage = StageSfm("calibrate",
-                         workdir / f"sfm_calibrate_{window.frame_idx[0]}_{window.frame_idx[-1]}",
-                         journey, window.frame_idx, step=step, front_end=config.calib_front_end,
-                         config=config, xyz_gps=xyz_gps, verbose=verbose)
+        first, last = window.frame_idx[0], window.frame_idx[-1]
+        return StageSfm("calibrate", workdir / f"sfm_{kind}_{first}_{last}", journey,
+                        window.frame_idx, step=step, front_end=config.calib_front_end,
+                        config=config, xyz_gps=xyz_gps, verbose=verbose)
+
+    def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
         request = WindowRequest(image_names=[names[i] for i in window.frame_idx], camera=start,
-                                calibrate=True)
-        return stage.run([request], None)[0]
+                                calibrate=True, keep_model=config.calib_joint)
+        return calibrate_stage(window, "calibrate").run([request], None)[0]
+
+    def refine_jointly(window: CalibrationWindow, accepted: WindowResult,
+                       partner: CalibrationWindow) -> WindowResult:
+        stage = calibrate_stage(partner, "calibrate_held")
+        request = WindowRequest(image_names=[names[i] for i in partner.frame_idx],
+                                camera=accepted.camera, keep_model=True)
+        mapped = stage.run([request], accepted.camera)[0]
+        return mapped if mapped.error else stage.refine_jointly([accepted, mapped])
 
     def on_candidate(k: int, total: int, window: CalibrationWindow) -> None:
         # Most journeys stop at the first candidate: each later one halves what is left.
@@ -163,7 +173,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
                 background.submit(ego_sfm.correspondences)
             with clock.stage("calibrate", f"{len(the_plan.calib_windows)} candidate windows"):
-                calib = _calibrate(journey, the_plan.calib_windows, config, calibrate_window,
+                calib = _calibrate(journey, the_plan.calib_windows, config,
+                                   (calibrate_window, refine_jointly),
                                    on_candidate, known_camera, entry)
     camera = calib.camera
 
@@ -218,7 +229,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
 
 def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,
-               calibrate_window, on_candidate, known_camera: CameraModel | None,
+               mappers, on_candidate, known_camera: CameraModel | None,
                entry: _Entry) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
@@ -230,10 +241,11 @@ def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config:
                          f"{stored}: no candidate window to self-calibrate on")
         return Calibration(known_camera, "supplied")
     try:
+        calibrate_window, refine_jointly = mappers
         calib = calibrate.self_calibrate(calib_windows, config, calibrate_window,
                                          hint=journey.camera_prior, width=journey.image_width,
                                          height=journey.image_height, on_candidate=on_candidate,
-                                         trials=entry.details)
+                                         trials=entry.details, refine_jointly=refine_jointly)
     except PipelineError as exc:
         if known_camera is None:
             raise

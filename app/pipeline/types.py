@@ -141,8 +141,10 @@ class Calibration:
     rotation_deg: float = 0.0
     windows: list[tuple[int, int]] = field(default_factory=list)
     # Why a self-calibration was trusted: "reprojection" (one window under the sharp-image
-    # error) or "agreement" (two windows landed on the same camera).
+    # error) or "agreement" (two windows landed on the same camera), "+joint" when stage 2 then
+    # ran over two windows at once.
     evidence: str = ""
+    single_window: CameraModel | None = None  # the accepted window's own camera, before "+joint"
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,8 @@ _FLAT = 1e8
 
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
-                   function_tolerance: float, aspect_sigma: float = 0.0) -> None:
+                   function_tolerance: float, aspect_sigma: float = 0.0,
+                   constant_frames: tuple[int, ...] = ()) -> None:
     import pyceres
 
     options = presets.options(pycolmap, "BundleAdjustmentOptions",
@@ -63,6 +64,8 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    for frame_id in constant_frames:
+        config.set_constant_rig_from_world_pose(frame_id)
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
     problem = adjuster.problem
     # Keep the manifold and the parameter arrays alive in variables until solve() returns: a
@@ -88,7 +91,8 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
-                          function_tolerance: float = 1e-6, aspect_sigma: float = 0.0) -> None:
+                          function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
+                          constant_frames: tuple[int, ...] = ()) -> None:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
@@ -102,16 +106,51 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23).
 
     ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
+    ``constant_frames``: frames whose pose is held, the gauge of the parts of a ``merged``
+    reconstruction after the first (COLMAP's gauge fixes one connected part only).
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
-                   function_tolerance=function_tolerance)
+                   function_tolerance=function_tolerance, constant_frames=constant_frames)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                   function_tolerance=function_tolerance, aspect_sigma=aspect_sigma)
+                   function_tolerance=function_tolerance, aspect_sigma=aspect_sigma,
+                   constant_frames=constant_frames)
     _filter_observations(pycolmap, rec, filter_max_error_px)
 
 
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:
     pycolmap.ObservationManager(rec).filter_all_points3D(max_error_px, 1.5)
+
+
+def merged(pycolmap, recs: list) -> tuple[object, tuple[int, ...]]:
+    """One reconstruction holding the registered images and the points of every one of ``recs``
+    (separate parts, each in its own frame and scale), all seen by the first one's camera; image
+    names get their part's index as a prefix. Returns it and the first frame of every part after
+    the first, whose pose holds that part's gauge in ``refine_all_intrinsics``."""
+    out = pycolmap.Reconstruction()
+    camera = pycolmap.Camera(next(iter(recs[0].cameras.values())).todict())
+    camera.camera_id = 1
+    out.add_camera_with_trivial_rig(camera)
+    next_id, anchors = 1, []
+    for part, rec in enumerate(recs):
+        new_ids = {}
+        for image_id in sorted(rec.reg_image_ids()):
+            image = rec.image(image_id)
+            points2D = pycolmap.Point2DList([pycolmap.Point2D(p.xy) for p in image.points2D])
+            out.add_image_with_trivial_frame(
+                pycolmap.Image(name=f"{part}/{image.name}", points2D=points2D, camera_id=1,
+                               image_id=next_id), image.cam_from_world())
+            new_ids[image_id] = next_id
+            next_id += 1
+        if part > 0 and new_ids:
+            anchors.append(out.image(min(new_ids.values())).frame_id)
+        for point in rec.points3D.values():
+            track = pycolmap.Track()
+            for el in point.track.elements:
+                if el.image_id in new_ids:
+                    track.add_element(new_ids[el.image_id], el.point2D_idx)
+            if track.length() >= 2:
+                out.add_point3D(point.xyz, track, point.color)
+    return out, tuple(anchors)

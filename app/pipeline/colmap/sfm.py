@@ -48,6 +48,8 @@ class WindowRequest:
     # the most matched pair: neighbouring frames whose short forward baseline can fix a wrong
     # relative pose that bundle adjustment never leaves). Falls back to COLMAP's choice on failure.
     init_pair: tuple[str, str] | None = None
+    # Write the final reconstruction to ``WindowResult.model_dir`` (for ``refine_jointly``).
+    keep_model: bool = False
 
 
 @dataclass
@@ -66,6 +68,7 @@ class WindowResult:
     n_input: int = 0
     error: str | None = None
     mapping_s: float = 0.0  # wall time COLMAP spent mapping (and refining) this window
+    model_dir: Path | None = None  # the reconstruction, when the request asked to keep it
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -331,15 +334,51 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         refine_all_intrinsics(pycolmap, rec,
                               function_tolerance=job.mapping.ba_function_tolerance,
                               aspect_sigma=job.mapping.aspect_prior_sigma)
-    return _window_result(rec, window, stage1 if window.calibrate else None)
+    result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
+    if window.keep_model:
+        result.model_dir = out / "model"
+        result.model_dir.mkdir()
+        rec.write(result.model_dir)
+    return result
 
 
-def _window_result(rec, window: WindowRequest, stage1: CameraModel | None) -> WindowResult:
-    names, T = registered_poses(rec, window.image_names)
+def refine_jointly(parts: list[WindowResult], workdir: Path, mapping: MappingOptions,
+                   process: ProcessOptions, verbose: bool = False) -> WindowResult:
+    """Stage 2 over the kept reconstructions of several windows at once, with one camera (the
+    first part's): more rotation and more points than one window pins down. The result lists
+    the images as ``<part>/<name>``; its poses are in each part's own frame."""
+    job = SfmJob(image_dir=workdir, workdir=workdir, extract_names=[], windows=[],
+                 mapping=mapping, process=process, verbose=verbose)
+    try:
+        with colmap_pool(1) as pool:
+            return pool.submit(_refine_jointly_in_child, job,
+                               [p.model_dir for p in parts], sum(p.n_input for p in parts)
+                               ).result()
+    except cf.process.BrokenProcessPool as exc:
+        raise PipelineError("colmap", "COLMAP aborted the process (see the worker log) "
+                                      "while refining windows jointly") from exc
+
+
+def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) -> WindowResult:
+    from app.pipeline.colmap.refine import merged, refine_all_intrinsics
+
+    pycolmap = _pycolmap(job)
+    t0 = time.perf_counter()
+    rec, anchors = merged(pycolmap, [pycolmap.Reconstruction(d) for d in model_dirs])
+    refine_all_intrinsics(pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
+                          aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors)
+    result = _window_result(rec, [im.name for im in rec.images.values()], None)
+    result.n_input = n_input
+    result.mapping_s = round(time.perf_counter() - t0, 3)
+    return result
+
+
+def _window_result(rec, image_names: list[str], stage1: CameraModel | None) -> WindowResult:
+    names, T = registered_poses(rec, image_names)
     camera = camera_model(next(iter(rec.cameras.values())))
     return WindowResult(names, T, camera, stage1,
                         float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                        len(window.image_names))
+                        len(image_names))
 
 
 def registered_poses(rec, names: list[str]) -> tuple[list[str], np.ndarray]:

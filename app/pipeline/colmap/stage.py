@@ -93,16 +93,28 @@ class StageSfm:
                 first_octave=(-1 if self.journey.image_width < cfg.sift_upsample_below_px
                               else cfg.sift_first_octave),
                 overlap=cfg.match_overlap),
-            mapping=MappingOptions(ba_max_refinements=cfg.ba_max_refinements,
-                                   ba_function_tolerance=cfg.ba_function_tolerance,
-                                   aspect_prior_sigma=cfg.calib_aspect_prior_sigma),
-            process=ProcessOptions(threads=cfg.colmap_threads, map_workers=cfg.colmap_map_workers),
+            mapping=_mapping(cfg), process=_process(cfg),
             verbose=self.verbose, prior_enu=self.priors,
             prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported)
         return sfm.run_sfm(job, on_mapped=on_mapped)
+
+    def refine_jointly(self, parts: list[sfm.WindowResult]) -> sfm.WindowResult:
+        """Stage 2 over the kept reconstructions ``parts`` at once (``sfm.refine_jointly``)."""
+        return sfm.refine_jointly(parts, self.workdir, _mapping(self.config),
+                                  _process(self.config), self.verbose)
 
     def _gray(self, path: Path) -> np.ndarray:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:  # the bundle reader decoded every frame already; this is disk trouble
             raise PipelineError(self.stage, f"frame {path.name} could not be read back")
         return image
+
+
+def _mapping(cfg: PipelineConfig) -> MappingOptions:
+    return MappingOptions(ba_max_refinements=cfg.ba_max_refinements,
+                          ba_function_tolerance=cfg.ba_function_tolerance,
+                          aspect_prior_sigma=cfg.calib_aspect_prior_sigma)
+
+
+def _process(cfg: PipelineConfig) -> ProcessOptions:
+    return ProcessOptions(threads=cfg.colmap_threads, map_workers=cfg.colmap_map_workers)

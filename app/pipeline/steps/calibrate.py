@@ -195,16 +195,67 @@ def no_turn_error(cfg: PipelineConfig) -> PipelineError:
                          "supply a calibration for this camera_id")
 
 
+def joint_partner(windows: list[CalibrationWindow],
+                  accepted: CalibrationWindow) -> CalibrationWindow | None:
+    """The candidate to refine jointly with the ``accepted`` one: the first of another turn, else
+    the one of the same turn sharing the fewest frames with it (at most 60 %: the candidates
+    shifted furthest from a centred one share half)."""
+    others = [w for w in windows if w.vertex != accepted.vertex]
+    if others:
+        return others[0]
+    lo, hi = int(accepted.frame_idx[0]), int(accepted.frame_idx[-1])
+
+    def shared(w: CalibrationWindow) -> float:
+        overlap = min(hi, int(w.frame_idx[-1])) - max(lo, int(w.frame_idx[0]))
+        return max(overlap, 0) / max(hi - lo, 1)
+    rest = sorted((w for w in windows if w is not accepted), key=shared)
+    return rest[0] if rest and shared(rest[0]) <= 0.6 else None
+
+
+# Refines the accepted window's reconstruction together with another window's, mapped with the
+# accepted camera held, in one stage 2: (accepted window, its result, the other window) -> the
+# joint result, or the other window's failed mapping (``error`` set, or few registered).
+JointRefiner = Callable[[CalibrationWindow, WindowResult, CalibrationWindow], WindowResult]
+
+
+def _refined_jointly(windows: list[CalibrationWindow], window: CalibrationWindow,
+                     best: WindowResult, cfg: PipelineConfig, refine_jointly: JointRefiner,
+                     trials: list[str]) -> tuple[WindowResult, CalibrationWindow | None]:
+    """The joint stage 2 of ``window`` with its partner when it holds, else ``best`` unchanged."""
+    partner = joint_partner(windows, window)
+    if partner is None:
+        trials.append("no other window to refine jointly with")
+        return best, None
+    joint = refine_jointly(window, best, partner)
+    why = joint.error or _implausible(joint.camera)
+    if not why and len(joint.image_names) < cfg.calib_min_registered_ratio * joint.n_input:
+        why = f"only {len(joint.image_names)}/{joint.n_input} frames registered"
+    if not why and joint.reprojection_error_px > cfg.max_calib_reprojection_px:
+        why = f"reprojection error {joint.reprojection_error_px:.2f} px"
+    if why:
+        log.info("calibration: no joint refinement with %s: %s", partner.label, why)
+        trials.append(f"joint with {partner.label}: not used, {why}")
+        return best, None
+    a, b = best.camera, joint.camera
+    trials.append(f"joint with {partner.label}: {len(joint.image_names)}/{joint.n_input} "
+                  f"registered, {joint.reprojection_error_px:.2f} px; fx {a.fx:.1f} -> {b.fx:.1f}, "
+                  f"k1 {a.k1:+.4f} -> {b.k1:+.4f}")
+    return joint, partner
+
+
 def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    map_window: Callable[[CalibrationWindow, CameraModel], WindowResult], *,
                    hint: CameraModel | None = None, width: int, height: int,
                    on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None,
-                   trials: list[str] | None = None) -> Calibration:
+                   trials: list[str] | None = None,
+                   refine_jointly: JointRefiner | None = None) -> Calibration:
     """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
     reason. ``map_window(window, start)`` maps the window's frames with free intrinsics from the
     camera ``start``. ``on_candidate(k, total, window)`` is called before the k-th is mapped;
     ``trials``, when given, gets one line per candidate tried: its frames, registration,
-    reprojection error and whether it was accepted or why not (the stage's report)."""
+    reprojection error and whether it was accepted or why not (the stage's report).
+    ``refine_jointly`` (used when ``calib_joint``) refines the accepted window together with
+    another; the joint camera replaces the single window's when it is plausible and fits."""
     if not windows:
         raise no_turn_error(cfg)
     trials = [] if trials is None else trials
@@ -258,10 +309,15 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         # the camera is worse than none.
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
                             + "; ".join(reasons))
-    window, best = min(chosen, key=lambda g: g[1].reprojection_error_px)
-    return Calibration(camera=best.camera, source="self", stage1=best.stage1_camera,
+    window, accepted = min(chosen, key=lambda g: g[1].reprojection_error_px)
+    best, used = accepted, [window]
+    if cfg.calib_joint and refine_jointly is not None:
+        joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
+        if partner is not None:
+            best, used, evidence = joint, [window, partner], evidence + "+joint"
+    return Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
                        n_images=best.n_input, n_registered=len(best.image_names),
                        reprojection_error_px=best.reprojection_error_px,
-                       rotation_deg=rotation_covered_deg(best.T_model_cam),
-                       windows=[(int(window.frame_idx[0]), int(window.frame_idx[-1]) + 1)],
-                       evidence=evidence)
+                       rotation_deg=rotation_covered_deg(accepted.T_model_cam),
+                       windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
+                       evidence=evidence, single_window=accepted.camera)

@@ -1,0 +1,81 @@
+"""Stage 2 over two windows at once (``colmap.refine.merged``), with COLMAP's own bundle adjuster,
+and the choice of the window that joins the accepted one (``calibrate.joint_partner``)."""
+
+import numpy as np
+import pytest
+
+from app.pipeline.steps.calibrate import CalibrationWindow, joint_partner
+
+TRUE_PARAMS = [800.0, 804.0, 640.5, 360.5, -0.2, 0.08, 0.0, 0.0]  # OPENCV, COLMAP pixels
+
+
+def _window(pycolmap, rng, yaw0_deg: float) -> "pycolmap.Reconstruction":
+    """12 cameras turning 55 deg about the vertical while driving a curve among 800 points
+    12-40 m around, observed through TRUE_PARAMS without noise; a reconstruction of its own
+    frame."""
+    camera = pycolmap.Camera(model="OPENCV", width=1280, height=720, params=TRUE_PARAMS,
+                             camera_id=1)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(camera)
+    bearing, range_m = rng.uniform(0, 2 * np.pi, 800), rng.uniform(12, 40, 800)
+    xyz_world = np.column_stack([range_m * np.sin(bearing), rng.uniform(-3, 3, 800),
+                                 range_m * np.cos(bearing)])
+    poses = []
+    for k in range(12):
+        yaw = np.radians(yaw0_deg + 5.0 * k)
+        R_cam_world = np.array([[np.cos(yaw), 0, -np.sin(yaw)], [0, 1, 0],
+                                [np.sin(yaw), 0, np.cos(yaw)]])
+        centre = np.array([2.0 * k * np.sin(yaw), 0.0, 2.0 * k * np.cos(yaw)])
+        poses.append(pycolmap.Rigid3d(pycolmap.Rotation3d(R_cam_world), -R_cam_world @ centre))
+    tracks: dict[int, list[tuple[int, int]]] = {}
+    for image_id, pose in enumerate(poses, start=1):
+        xyz_cam = (pose.matrix()[:, :3] @ xyz_world.T).T + pose.matrix()[:, 3]
+        seen = np.flatnonzero(xyz_cam[:, 2] > 1.0)
+        xy = camera.img_from_cam(xyz_cam[seen])
+        keep = (xy[:, 0] > 0) & (xy[:, 0] < 1280) & (xy[:, 1] > 0) & (xy[:, 1] < 720)
+        image = pycolmap.Image(name=f"{image_id}.jpg", camera_id=1, image_id=image_id,
+                               points2D=pycolmap.Point2DList(
+                                   [pycolmap.Point2D(p) for p in xy[keep]]))
+        rec.add_image_with_trivial_frame(image, pose)
+        for idx2d, point in enumerate(seen[keep]):
+            tracks.setdefault(int(point), []).append((image_id, idx2d))
+    for point, elements in tracks.items():
+        if len(elements) >= 2:
+            track = pycolmap.Track()
+            for image_id, idx2d in elements:
+                track.add_element(image_id, idx2d)
+            rec.add_point3D(xyz_world[point], track)
+    return rec
+
+
+def test_two_windows_refined_jointly_recover_the_camera_from_a_wrong_start():
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import merged, refine_all_intrinsics
+
+    rng = np.random.default_rng(3)
+    parts = [_window(pycolmap, rng, 0.0), _window(pycolmap, rng, 90.0)]
+    rec, anchors = merged(pycolmap, parts)
+    assert rec.num_reg_images() == 24 and len(rec.cameras) == 1 and len(anchors) == 1
+    assert rec.num_points3D() == sum(p.num_points3D() for p in parts)
+    camera = rec.camera(1)
+    camera.params = np.array(TRUE_PARAMS) * [1.03, 1.03, 1, 1, 0.8, 0.5, 1, 1]
+    refine_all_intrinsics(pycolmap, rec, constant_frames=anchors)
+
+    fx, fy, cx, cy, k1, k2 = np.asarray(rec.camera(1).params)[:6]
+    assert abs(fx / TRUE_PARAMS[0] - 1) < 1e-3 and abs(fy / TRUE_PARAMS[1] - 1) < 1e-3
+    assert abs(cx - TRUE_PARAMS[2]) < 0.5 and abs(cy - TRUE_PARAMS[3]) < 0.5
+    assert abs(k1 - TRUE_PARAMS[4]) < 2e-3
+    assert rec.compute_mean_reprojection_error() < 0.05
+
+
+def _cw(first: int, last: int, vertex: int) -> CalibrationWindow:
+    return CalibrationWindow(np.arange(first, last + 1, 4), vertex)
+
+
+def test_the_joint_partner_is_another_turn_first_else_a_window_sharing_few_frames():
+    accepted = _cw(40, 128, vertex=80)
+    same_turn = [_cw(20, 108, 80), _cw(84, 172, 80)]
+    other_turn = _cw(300, 388, 340)
+    assert joint_partner([accepted, *same_turn, other_turn], accepted) is other_turn
+    assert joint_partner([accepted, *same_turn], accepted) is same_turn[1]
+    assert joint_partner([accepted, same_turn[0]], accepted) is None  # shares 77 % of its frames
