@@ -142,12 +142,13 @@ def test_images_spread_by_heading_change_crowd_into_a_sharp_turn():
     assert largest_step_deg(0.5) <= 0.6 * largest_step_deg(0.0)
 
 
-def _search(results: list[WindowResult]):
-    """Run the candidate search over made-up windows; returns (calibration or error, windows tried)."""
+def _search(results: list[WindowResult], shift: int = 20):
+    """Run the candidate search over made-up windows of 30 frames, each ``shift`` frames after the
+    last; returns (calibration or error, windows tried)."""
     from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
     from app.pipeline.types import PipelineError
 
-    windows = [CalibrationWindow(np.arange(30) + 10 * k, 40) for k in range(len(results))]
+    windows = [CalibrationWindow(np.arange(30) + shift * k, 40) for k in range(len(results))]
     tried: list[int] = []
 
     def map_window(window, request):
@@ -176,6 +177,14 @@ def test_two_windows_that_agree_are_trusted_above_the_sharp_image_error():
                           _window(nearly, error_px=0.45), _window(TRUE, error_px=0.1)])
     assert tried == [0, 1, 2] and cal.evidence == "agreement"
     assert cal.camera == nearly  # the lower error of the two that agree
+
+
+def test_windows_sharing_most_of_their_road_are_not_two_witnesses():
+    # Two windows sharing three quarters of their road fell into one wrong minimum together
+    # (fx 18 % low at 0.59 px, 2026-11-25).
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    err, tried = _search([_window(TRUE, error_px=0.5), _window(nearly, error_px=0.45)], shift=8)
+    assert tried == [0, 1] and "no other window agreed" in str(err)
 
 
 def test_a_lone_unconfirmed_window_is_refused_not_accepted():

@@ -195,21 +195,30 @@ def no_turn_error(cfg: PipelineConfig) -> PipelineError:
                          "supply a calibration for this camera_id")
 
 
+# Two candidates that share more of their road than this are one piece of evidence, not two:
+# the candidates shifted furthest from a centred one share half of it.
+MAX_SHARED_FRACTION = 0.6
+
+
+def shared_fraction(a: CalibrationWindow, b: CalibrationWindow) -> float:
+    """Share of ``a``'s frame span that ``b`` spans too."""
+    lo, hi = int(a.frame_idx[0]), int(a.frame_idx[-1])
+    overlap = min(hi, int(b.frame_idx[-1])) - max(lo, int(b.frame_idx[0]))
+    return max(overlap, 0) / max(hi - lo, 1)
+
+
 def joint_partner(windows: list[CalibrationWindow],
                   accepted: CalibrationWindow) -> CalibrationWindow | None:
     """The candidate to refine jointly with the ``accepted`` one: the first of another turn, else
-    the one of the same turn sharing the fewest frames with it (at most 60 %: the candidates
-    shifted furthest from a centred one share half)."""
+    the one of the same turn sharing the fewest frames with it, if few enough."""
     others = [w for w in windows if w.vertex != accepted.vertex]
     if others:
         return others[0]
-    lo, hi = int(accepted.frame_idx[0]), int(accepted.frame_idx[-1])
-
-    def shared(w: CalibrationWindow) -> float:
-        overlap = min(hi, int(w.frame_idx[-1])) - max(lo, int(w.frame_idx[0]))
-        return max(overlap, 0) / max(hi - lo, 1)
-    rest = sorted((w for w in windows if w is not accepted), key=shared)
-    return rest[0] if rest and shared(rest[0]) <= 0.6 else None
+    rest = sorted((w for w in windows if w is not accepted),
+                  key=lambda w: shared_fraction(accepted, w))
+    if rest and shared_fraction(accepted, rest[0]) <= MAX_SHARED_FRACTION:
+        return rest[0]
+    return None
 
 
 # Refines the accepted window's reconstruction together with another window's, mapped with the
@@ -281,11 +290,13 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
             break
-        agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)]
+        agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
+                    and shared_fraction(window, g[0]) <= MAX_SHARED_FRACTION]
         if agreeing:
             # Two windows of other frames that land on the same camera are evidence a wrong
             # minimum cannot fake; blurred or compressed frames never reach the sharp-image
-            # error that ends the search on its own.
+            # error that ends the search on its own. Windows sharing most of their road fell
+            # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
             chosen, evidence = agreeing + [(window, res)], "agreement"
             log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
             trials.append(f"{_trial(window, res)}: accepted, agrees with "
