@@ -82,6 +82,11 @@ class PipelineConfig(BaseModel):
         1000, description="images narrower than this are upsampled 2x for SIFT (octave -1)")
     match_overlap: int = Field(8, description="sequential matching: temporal neighbours per frame")
     colmap_threads: int = Field(2, description="threads COLMAP may use (0 = all)")
+    # On 3 tuning journeys, one thread gave bit-identical cameras on two runs (two threads: fx
+    # differing by up to 0.5 %) and made calibration ~30 % slower (2026-11-25).
+    colmap_reproducible: bool = Field(
+        False, description="COLMAP in one thread per process, so a journey gives the same "
+        "result on every run (COLMAP's results depend on thread timing)")
     colmap_map_workers: int = Field(
         2, description="processes mapping windows side by side (COLMAP's mapper uses ~1 core)")
     ba_function_tolerance: float = Field(

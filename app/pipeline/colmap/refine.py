@@ -52,14 +52,15 @@ _FLAT = 1e8
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
                    function_tolerance: float, aspect_sigma: float = 0.0,
-                   constant_frames: tuple[int, ...] = ()) -> None:
+                   constant_frames: tuple[int, ...] = (), threads: int = -1) -> None:
     import pyceres
 
     options = presets.options(pycolmap, "BundleAdjustmentOptions",
                               presets.INTRINSICS_BUNDLE_ADJUSTMENT,
                               refine_principal_point=principal_point,
                               **{"ceres.loss_function_scale": loss_scale_px,
-                                 "ceres.solver_options.function_tolerance": function_tolerance})
+                                 "ceres.solver_options.function_tolerance": function_tolerance,
+                                 "ceres.solver_options.num_threads": threads})
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
@@ -92,7 +93,7 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
-                          constant_frames: tuple[int, ...] = ()) -> None:
+                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> None:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
@@ -108,15 +109,17 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
     ``constant_frames``: frames whose pose is held, the gauge of the parts of a ``merged``
     reconstruction after the first (COLMAP's gauge fixes one connected part only).
+    ``threads``: Ceres threads (-1: every core; 1 gives the same result on every run).
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
-                   function_tolerance=function_tolerance, constant_frames=constant_frames)
+                   function_tolerance=function_tolerance, constant_frames=constant_frames,
+                   threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
                    function_tolerance=function_tolerance, aspect_sigma=aspect_sigma,
-                   constant_frames=constant_frames)
+                   constant_frames=constant_frames, threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
 
 

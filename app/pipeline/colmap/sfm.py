@@ -117,8 +117,9 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
     workers = max(1, min(job.process.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
-    light = replace(job, extract_names=[], imported=None, process=replace(
-        job.process, threads=max(1, job.process.threads // workers)))
+    threads = max(1, job.process.threads // workers)
+    light = replace(job, extract_names=[], imported=None,
+                    process=replace(job.process, threads=threads))
     try:
         with colmap_pool(workers) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()
@@ -333,7 +334,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         from app.pipeline.colmap.refine import refine_all_intrinsics
         refine_all_intrinsics(pycolmap, rec,
                               function_tolerance=job.mapping.ba_function_tolerance,
-                              aspect_sigma=job.mapping.aspect_prior_sigma)
+                              aspect_sigma=job.mapping.aspect_prior_sigma,
+                              threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
     if window.keep_model:
         result.model_dir = out / "model"
@@ -366,7 +368,8 @@ def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) 
     t0 = time.perf_counter()
     rec, anchors = merged(pycolmap, [pycolmap.Reconstruction(d) for d in model_dirs])
     refine_all_intrinsics(pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
-                          aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors)
+                          aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors,
+                          threads=job.process.threads)
     result = _window_result(rec, [im.name for im in rec.images.values()], None)
     result.n_input = n_input
     result.mapping_s = round(time.perf_counter() - t0, 3)

@@ -117,4 +117,9 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:
-    return ProcessOptions(threads=cfg.colmap_threads, map_workers=cfg.colmap_map_workers)
+    # Threads change COLMAP's results: verification writes pairs in the order they finish (and
+    # that order feeds the mapper), and bundle adjustments sum in thread order. One calibration
+    # window accepted at fx +0.14 % on one run was at +0.09 % on the next; a window of another
+    # journey was refused on one run and accepted on another (2026-11-25).
+    return ProcessOptions(threads=1 if cfg.colmap_reproducible else cfg.colmap_threads,
+                          map_workers=cfg.colmap_map_workers)
