@@ -9,7 +9,7 @@ from app.pipeline.steps.calibrate import CalibrationWindow, joint_partner
 TRUE_PARAMS = [800.0, 804.0, 640.5, 360.5, -0.2, 0.08, 0.0, 0.0]  # OPENCV, COLMAP pixels
 
 
-def _window(pycolmap, rng, yaw0_deg: float) -> "pycolmap.Reconstruction":
+def _window(pycolmap, rng, yaw0_deg: float):
     """12 cameras turning 55 deg about the vertical while driving a curve among 800 points
     12-40 m around, observed through TRUE_PARAMS without noise; a reconstruction of its own
     frame."""
