@@ -173,9 +173,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
                 background.submit(ego_sfm.correspondences)
             with clock.stage("calibrate", f"{len(the_plan.calib_windows)} candidate windows"):
-                calib = _calibrate(journey, the_plan.calib_windows, config,
-                                   (calibrate_window, refine_jointly),
-                                   on_candidate, known_camera, entry)
+                calib = _calibrate(journey, the_plan.calib_windows, config, calibrate_window,
+                                   refine_jointly, on_candidate, known_camera, entry)
     camera = calib.camera
 
     if not tracks:
@@ -229,7 +228,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
 
 def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,
-               mappers, on_candidate, known_camera: CameraModel | None,
+               calibrate_window, refine_jointly, on_candidate,
+               known_camera: CameraModel | None,
                entry: _Entry) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
@@ -241,7 +241,6 @@ def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config:
                          f"{stored}: no candidate window to self-calibrate on")
         return Calibration(known_camera, "supplied")
     try:
-        calibrate_window, refine_jointly = mappers
         calib = calibrate.self_calibrate(calib_windows, config, calibrate_window,
                                          hint=journey.camera_prior, width=journey.image_width,
                                          height=journey.image_height, on_candidate=on_candidate,

@@ -117,9 +117,8 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
     workers = max(1, min(job.process.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
-    threads = max(1, job.process.threads // workers)
-    light = replace(job, extract_names=[], imported=None,
-                    process=replace(job.process, threads=threads))
+    light = replace(job, extract_names=[], imported=None, process=replace(
+        job.process, threads=max(1, job.process.threads // workers)))
     try:
         with colmap_pool(workers) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()

@@ -149,14 +149,21 @@ def _implausible(camera: CameraModel) -> str | None:
     return None
 
 
-def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
-    """Why this candidate is unusable, or None."""
+def _poor_fit(res: WindowResult, cfg: PipelineConfig) -> str | None:
+    """Why this mapping does not hold (failed, few frames registered, large error), or None."""
     if res.error:
         return res.error
     if len(res.image_names) < cfg.calib_min_registered_ratio * res.n_input:
         return f"only {len(res.image_names)}/{res.n_input} frames registered"
     if res.reprojection_error_px > cfg.max_calib_reprojection_px:
         return f"reprojection error {res.reprojection_error_px:.2f} px"
+    return None
+
+
+def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
+    """Why this candidate is unusable, or None."""
+    if why := _poor_fit(res, cfg):
+        return why
     rotation = rotation_covered_deg(res.T_model_cam)
     if rotation < cfg.min_turn_rotation_deg:
         return f"only {rotation:.0f} deg of rotation"
@@ -223,7 +230,7 @@ def joint_partner(windows: list[CalibrationWindow],
 
 # Refines the accepted window's reconstruction together with another window's, mapped with the
 # accepted camera held, in one stage 2: (accepted window, its result, the other window) -> the
-# joint result, or the other window's failed mapping (``error`` set, or few registered).
+# joint result, or the other window's mapping when it failed (``error`` set).
 JointRefiner = Callable[[CalibrationWindow, WindowResult, CalibrationWindow], WindowResult]
 
 
@@ -236,12 +243,8 @@ def _refined_jointly(windows: list[CalibrationWindow], window: CalibrationWindow
         trials.append("no other window to refine jointly with")
         return best, None
     joint = refine_jointly(window, best, partner)
-    why = joint.error or _implausible(joint.camera)
-    if not why and len(joint.image_names) < cfg.calib_min_registered_ratio * joint.n_input:
-        why = f"only {len(joint.image_names)}/{joint.n_input} frames registered"
-    if not why and joint.reprojection_error_px > cfg.max_calib_reprojection_px:
-        why = f"reprojection error {joint.reprojection_error_px:.2f} px"
-    if why:
+    # Not judge_window: the joint poses are in two frames, so their rotation means nothing.
+    if why := _poor_fit(joint, cfg) or _implausible(joint.camera):
         log.info("calibration: no joint refinement with %s: %s", partner.label, why)
         trials.append(f"joint with {partner.label}: not used, {why}")
         return best, None
