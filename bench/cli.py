@@ -112,6 +112,30 @@ def run_corpus_compare_command(args) -> int:
     return 0
 
 
+def run_turns_command(args) -> int:
+    from bench.turn_detection import run
+
+    try:
+        print(run(args.n, args.seed, args.variant or [], args.half))
+    except ValueError as exc:
+        raise SystemExit(f"signmap bench turns: {exc}") from exc
+    return 0
+
+
+def _add_turns_parser(bench_sub) -> None:
+    t = bench_sub.add_parser(
+        "turns", help="the turn finder against the truth over corpus journeys (no rendering)",
+        description="Draws the journeys `signmap synth corpus --n N --seed S` would render, "
+        "without their pixels, and prints per variant and half the journeys with a true turn "
+        "of 45 deg or more where no turn is found and the gentle ones where one is.")
+    t.add_argument("--n", type=int, default=64, help="journeys (default 64)")
+    t.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    t.add_argument("--half", choices=("tuning", "check"), help="one half only")
+    t.add_argument("--variant", action="append", metavar="NAME:KNOB=VALUE,...",
+                   help="a row besides the defaults (repeatable)")
+    t.set_defaults(func=run_turns_command)
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -229,6 +253,7 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    _add_turns_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "

@@ -164,8 +164,6 @@ def _phone_gps(xy_true: np.ndarray, sigma_m: float, seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_smoothing_keeps_phone_gps_noise_from_making_or_hiding_turns(seed):
-    from app.pipeline.steps.turns import smooth_track
-
     t_s = np.arange(300) / 10.0
     straight = np.column_stack([8.0 * t_s, np.zeros_like(t_s)])
     noisy = _phone_gps(straight, 2.5, seed)
@@ -179,6 +177,40 @@ def test_smoothing_keeps_phone_gps_noise_from_making_or_hiding_turns(seed):
     t_c = np.arange(len(corner)) / 10.0
     found = find_turns(smooth_track(_phone_gps(corner, 2.5, seed), t_c, 1.0))
     assert len(found) == 1 and 60.0 < abs(found[0].angle_deg) < 120.0
+
+
+@pytest.mark.parametrize("first_fix_s", [0.0, 0.3, 0.6])
+def test_smoothing_in_metres_keeps_a_turn_taken_at_speed(first_fix_s):
+    """Corpus c0058's case: a 51 deg turn (radius 20 m) at 18 m/s, 15 frames/s, 1 Hz fixes, on an
+    82 m journey. Smoothed over a second (18 m) it is no turn at all; over 6 m it is one."""
+    radius_m, turn = 20.0, np.radians(51.0)
+    end = np.array([30.0 + radius_m * np.sin(turn), radius_m * (1 - np.cos(turn))])
+
+    def position(s_m: float) -> np.ndarray:
+        if s_m < 30.0:
+            return np.array([s_m, 0.0])
+        if s_m < 30.0 + radius_m * turn:
+            th = (s_m - 30.0) / radius_m
+            return np.array([30.0 + radius_m * np.sin(th), radius_m * (1 - np.cos(th))])
+        return end + (s_m - 30.0 - radius_m * turn) * np.array([np.cos(turn), np.sin(turn)])
+
+    t_s = np.arange(0.0, 82.0 / 18.0, 1 / 15.0)
+    t_fix = np.arange(first_fix_s, t_s[-1] + 1.0, 1.0)
+    fixes = np.array([position(18.0 * t) for t in t_fix])
+    xy_m = np.column_stack([np.interp(t_s, t_fix, fixes[:, k]) for k in range(2)])
+    assert find_turns(smooth_track(xy_m, t_s, 1.0)) == []
+    found = find_turns(smooth_track(xy_m, t_s, 1.0, 6.0))
+    assert len(found) == 1 and 35.0 < found[0].rotation_deg < 60.0
+
+
+def test_smoothing_capped_in_metres_lets_phone_noise_make_turns_at_speed():
+    """Why the cap is off by default: on a straight road at 12 m/s with 2.5 m of 1 Hz noise, a
+    second of smoothing finds no turn in 40 tracks and 6 m finds some."""
+    t_s = np.arange(300) / 10.0
+    straight = np.column_stack([12.0 * t_s, np.zeros_like(t_s)])
+    found = [[bool(find_turns(smooth_track(_phone_gps(straight, 2.5, seed), t_s, 1.0, cap)))
+              for seed in range(40)] for cap in (None, 6.0)]
+    assert sum(found[0]) == 0 and sum(found[1]) >= 2
 
 
 def test_cumulative_rotation_follows_a_u_turn_and_ignores_a_standing_car():

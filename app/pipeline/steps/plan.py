@@ -38,7 +38,7 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
     """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
     xy_track = turns.smooth_track(xyz_gps[:, :2], np.array([f.timestamp_s for f in
                                                             journey.frames]),
-                                  config.turn_smoothing_s)
+                                  config.turn_smoothing_s, config.turn_smoothing_max_m)
     turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
                                     min_angle_deg=config.turn_min_angle_deg,
                                     window_m=config.turn_window_m)
