@@ -82,14 +82,22 @@ def sign_errors(result: JourneyResult, truth: dict) -> dict[str, dict[str, float
         est = enu.to_local([sign.lat_deg], [sign.lon_deg], [sign.alt_m])[0]
         true = np.asarray(t["xyz_enu"], dtype=float)
         true_cam = {ob["frame"]: np.array([ob["x"], ob["y"], ob["z"]]) for ob in t["observations"]}
-        rel = [np.linalg.norm(np.array(ob.p_cam) - true_cam[ob.frame_id])
-               for ob in sign.observations if ob.frame_id in true_cam]
+        pairs = [(np.array(ob.p_cam), true_cam[ob.frame_id]) for ob in sign.observations
+                 if ob.frame_id in true_cam]
+        rel = [np.linalg.norm(p - q) for p, q in pairs]
+        # Range and range ratio: a reconstruction scaled wrong errs along the ray, in proportion
+        # to the range; triangulation noise errs across it too.
+        range_m = [np.linalg.norm(q) for _, q in pairs]
+        range_ratio = [np.linalg.norm(p) / np.linalg.norm(q) for p, q in pairs]
         facing_err = (angle_between_deg(sign.facing_deg, t["facing_deg"])
                       if sign.facing_deg is not None and "facing_deg" in t else float("nan"))
         h_err_m = float(np.linalg.norm((est - true)[:2]))
         s_m = [s_by_frame[ob.frame_id] for ob in sign.observations if ob.frame_id in s_by_frame]
         out[sign.track_id] = {"truth_id": truth_id(t), "abs_m": float(np.linalg.norm(est - true)),
                               "rel_m": float(np.mean(rel)) if rel else float("nan"),
+                              "range_m": float(np.mean(range_m)) if rel else float("nan"),
+                              "range_ratio": (float(np.median(range_ratio)) if rel
+                                              else float("nan")),
                               "std_m": float(sign.std_m), "facing_err_deg": facing_err,
                               "h_err_m": h_err_m, "r95_h_m": sign.r95_h_m,
                               "within_r95": (None if sign.r95_h_m is None
