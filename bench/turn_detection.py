@@ -81,7 +81,7 @@ def parse_variant(text: str) -> tuple[str, dict[str, str]]:
     """``name:knob=value,knob=value`` -> (name, {knob: value})."""
     name, _, knobs = text.partition(":")
     pairs = [kv.split("=", 1) for kv in knobs.split(",") if kv]
-    if not name or any(len(p) != 2 for p in pairs):
+    if not name or not pairs or any(len(p) != 2 for p in pairs):
         raise ValueError(f"expected name:knob=value,..., got {text!r}")
     return name, dict(pairs)
 
