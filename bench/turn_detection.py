@@ -91,7 +91,5 @@ def run(n: int, seed: int, variants: list[str], half: str | None = None) -> str:
     for text in variants:
         name, knobs = parse_variant(text)
         configs[name] = PipelineConfig(**knobs)
-    tracks = [journey_track(s) for s in range(seed, seed + n)]
-    if half:
-        tracks = [t for t in tracks if t.half == half]
-    return table(tracks, configs)
+    seeds = [s for s in range(seed, seed + n) if not half or draw_journey(s)[1]["half"] == half]
+    return table([journey_track(s) for s in seeds], configs)

@@ -18,11 +18,13 @@ class PipelineConfig(BaseModel):
     turn_smoothing_s: float = Field(
         1.0, description="the GPS track is smoothed over this many seconds before RDP "
         "(phone-grade GPS zigzags by more than the tolerance)")
-    # 6 m found two fast journeys' turns on the 64-journey corpus (2026-11-26) but made false
-    # turns of phone-grade noise on straight roads at 6-18 m/s 6-12 times in 100 instead of 0-4.
+    # `signmap bench turns --n 256` (2026-11-26), tuning half, 91 journeys with a turn >= 45 deg:
+    # 8-12 m found 88 instead of 86 (two fast journeys with sparse GPS) with as many gentle
+    # journeys given a false turn (3); 6 m added false turns, 16 m lost the two. Check half: 92/93
+    # either way, no false turn at 12 m.
     turn_smoothing_max_m: float = Field(
-        0.0, description="if > 0, smooth over at most this many metres at the journey's mean "
-        "speed (a second at speed flattens a turn); 0: off")
+        12.0, description="... but over at most this many metres at the journey's mean speed "
+        "(a second at speed flattens a turn); 0: no cap")
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
     # 44 frames at 10 Hz and 8 m/s (turn-70) spanned 35 m: the span that calibrated there.
