@@ -106,6 +106,12 @@ class PipelineConfig(BaseModel):
     sign_window_margin_frames: int = Field(15, description="frames added before/after a sign track")
     ego_max_frames_per_window: int = 80
     ego_frame_step: int = Field(2, description="map every n-th frame near the signs")
+    # At 5 frames/s and 10-13 m/s every 2nd frame is 4-5 m from the next and KLT loses the
+    # tracks: on the corpus's tuning half those journeys mapped 17 of their 36 mappable signs with
+    # a step of 2, 24 with a step of 1 (2026-11-26).
+    ego_max_spacing_m: float = Field(
+        2.5, description="map frames closer than this (metres, at the journey's moving speed): "
+        "the step shrinks from ego_frame_step down to 1 when frames are farther apart")
     # Chained windows let the joint alignment (``alignment_joint``) average the GPS bias over the
     # chain instead of over one window (the synthetic bias stays correlated over ~40-60 frames).
     ego_window_overlap_frames: int = Field(
@@ -135,6 +141,10 @@ class PipelineConfig(BaseModel):
     alignment_joint: bool = Field(
         True, description="align windows that share frames jointly (they must agree on those "
                           "frames) instead of each to GPS on its own")
+    alignment_scale_ratio_sigma: float = Field(
+        0.0, description="in the joint alignment, tie two windows' scales to the ratio of the "
+        "depths they give the same keypoints of their shared frames, to at least this "
+        "1-sigma error in log scale; 0: tied by the shared camera centres only")
 
     # Triangulation.
     min_track_frames: int = 3

@@ -163,7 +163,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                      f"candidate window {k + 1} of at most {total} ({window.label})")
 
     ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
-                       step=config.ego_frame_step, front_end=config.ego_front_end, config=config,
+                       step=the_plan.ego_step, front_end=config.ego_front_end, config=config,
                        xyz_gps=xyz_gps, verbose=verbose)
     calib: Calibration
     with journal.stage("calibrate") as entry:
@@ -185,7 +185,7 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     with journal.stage("ego_motion") as entry, \
             clock.stage("ego_motion", f"{len(ego_windows)} windows"):
         results = ego_sfm.run(ego_motion.requests(
-            ego_windows, names, camera, step=config.ego_frame_step, extra=the_plan.off_grid,
+            ego_windows, names, camera, step=the_plan.ego_step, extra=the_plan.off_grid,
             position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
@@ -201,7 +201,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         dropped: list[str] = []
         aligned = align.align_windows(
             poses, xyz_gps, joint=config.alignment_joint,
-            sigmas=align.JointSigmas(gps_m=config.gps_sigma_m),
+            sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
+                                     scale_ratio=config.alignment_scale_ratio_sigma or None),
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
         entry.take(align.report(len(poses), aligned, dropped))

@@ -216,3 +216,17 @@ def test_a_short_track_off_the_step_grid_keeps_all_its_frames():
     assert request.image_names == [names[i] for i in ego_motion.window_frames((120, 150), 2,
                                                                                extra)]
     assert request.init_pair == (names[130], names[138])  # on the grid, in the middle
+
+
+def test_frames_far_apart_are_all_mapped_and_a_standing_car_does_not_count_as_slow():
+    from app.pipeline.steps.plan import frame_step
+
+    at_10hz_9mps = np.arange(300) * 0.9  # KITTI-like: 0.9 m per frame
+    at_5hz_10mps = np.arange(100) * 2.0
+    assert frame_step(at_10hz_9mps, 2, 2.5) == 2
+    assert frame_step(at_5hz_10mps, 2, 2.5) == 1
+    assert frame_step(at_5hz_10mps, 2, 0.0) == 2  # 0: the fixed step
+    # Half the journey standing still: the moving half sets the spacing.
+    stop_and_go = np.concatenate([np.zeros(100), np.arange(1, 101) * 2.0])
+    assert frame_step(stop_and_go, 2, 2.5) == 1
+    assert frame_step(np.zeros(50), 2, 2.5) == 2

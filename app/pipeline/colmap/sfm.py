@@ -69,6 +69,11 @@ class WindowResult:
     error: str | None = None
     mapping_s: float = 0.0  # wall time COLMAP spent mapping (and refining) this window
     model_dir: Path | None = None  # the reconstruction, when the request asked to keep it
+    # Per registered image (in ``image_names`` order): the indices (P,) of its keypoints that have
+    # a 3D point and their depths (P,) along its optical axis, model units. Two windows that map
+    # the same image from one database share its keypoints, so the depths' ratio is the ratio of
+    # the windows' scales (``steps.align``).
+    keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -380,7 +385,25 @@ def _window_result(rec, image_names: list[str], stage1: CameraModel | None) -> W
     camera = camera_model(next(iter(rec.cameras.values())))
     return WindowResult(names, T, camera, stage1,
                         float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                        len(image_names))
+                        len(image_names), keypoint_depths=keypoint_depths(rec, names))
+
+
+def keypoint_depths(rec, names: list[str]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each image of ``names`` (registered in ``rec``): (indices of its keypoints observing a
+    3D point, their depths in its camera frame), arrays of shape (P,)."""
+    by_name = {im.name: im for im in rec.images.values()}
+    xyz = {pid: p.xyz for pid, p in rec.points3D.items()}
+    out = []
+    for name in names:
+        im = by_name[name]
+        idx = np.asarray(im.get_observation_point2D_idxs(), dtype=int)
+        if idx.size == 0:
+            out.append((idx, np.zeros(0)))
+            continue
+        p_model = np.array([xyz[im.points2D[i].point3D_id] for i in idx])  # (P, 3)
+        T_cam_model = np.asarray(im.cam_from_world().matrix())  # (3, 4)
+        out.append((idx, p_model @ T_cam_model[2, :3] + T_cam_model[2, 3]))
+    return out
 
 
 def registered_poses(rec, names: list[str]) -> tuple[list[str], np.ndarray]:

@@ -57,6 +57,9 @@ class JointSigmas:
     centre_m: float = 0.03
     rotation_deg: float = 0.2
     roll_deg: float = 1.0
+    # Least error of the log scale ratio two windows' depths of the same keypoints give
+    # (``scale_ratio``); None: the windows' scales are tied by their shared camera centres only.
+    scale_ratio: float | None = None
 
 
 # The robust loss (soft L1) is quadratic up to this many sigmas: a window whose reconstruction
@@ -113,6 +116,42 @@ def _shared_rows(a: WindowPoses, b: WindowPoses) -> tuple[np.ndarray, np.ndarray
     return rows_a, rows_b
 
 
+@dataclass(frozen=True)
+class ScaleRatio:
+    """``log(scale_a / scale_b)`` of two windows' model -> world similarities, from the depths
+    both give the same keypoints of the frames they share, and its 1-sigma error."""
+
+    log_ratio: float
+    sigma: float
+    n: int
+
+
+def scale_ratio(a: WindowPoses, b: WindowPoses, min_points: int = 20) -> ScaleRatio | None:
+    """The scale ratio of windows ``a`` and ``b`` (None when they share too few keypoints).
+
+    A keypoint of a shared frame at depth d_a in ``a``'s model and d_b in ``b``'s is at
+    s_a d_a = s_b d_b in the world, so log(s_a / s_b) = log(d_b / d_a): a median over every
+    shared keypoint, with the error of a median of that spread (observations of one 3D point in
+    several shared frames are not independent: the count is of keypoints per frame / frames)."""
+    if a.keypoint_depths is None or b.keypoint_depths is None:
+        return None
+    rows_a, rows_b = _shared_rows(a, b)
+    logs = []
+    for ra, rb in zip(rows_a, rows_b):
+        idx_a, d_a = a.keypoint_depths[ra]
+        idx_b, d_b = b.keypoint_depths[rb]
+        _, ka, kb = np.intersect1d(idx_a, idx_b, assume_unique=True, return_indices=True)
+        ok = (d_a[ka] > 0) & (d_b[kb] > 0)
+        logs.append(np.log(d_b[kb][ok] / d_a[ka][ok]))
+    logs = np.concatenate(logs) if logs else np.zeros(0)
+    if len(logs) < min_points:
+        return None
+    median = float(np.median(logs))
+    spread = 1.4826 * float(np.median(np.abs(logs - median)))
+    independent = max(1.0, len(logs) / max(1, len(rows_a)))
+    return ScaleRatio(median, 1.2533 * spread / np.sqrt(independent), len(logs))
+
+
 def _linked_groups(poses: list[WindowPoses], min_shared: int) -> list[list[int]]:
     """Indices of ``poses`` grouped by chains of windows sharing >= ``min_shared`` frames."""
     group = list(range(len(poses)))
@@ -159,6 +198,14 @@ class _JointProblem:
         self.pairs = [p for p in self.pairs if len(p[2])]
         self.roll_axes = [(k, _line_direction(w.T_world_cam[:, :3, 3]))
                           for k, w in enumerate(windows) if w.info.get("degenerate")]
+        # (i, j, log(s_i / s_j) from shared depths, its sigma) per linked pair that has one.
+        self.ratios = []
+        if sigmas.scale_ratio is not None:
+            for i, j, _, _ in self.pairs:
+                r = scale_ratio(windows[i].poses, windows[j].poses)
+                if r is not None:
+                    self.ratios.append((i, j, r.log_ratio, max(r.sigma, sigmas.scale_ratio)))
+        self.log_scale = [np.log(w.sim.scale) for w in windows]
 
     def sims(self, x: np.ndarray) -> list[Sim3]:
         """Model -> world similarity of every window for the corrections x (7 * n_windows,)."""
@@ -185,6 +232,9 @@ class _JointProblem:
         dx = x.reshape(-1, 7)
         parts.append(np.array([dx[k, :3] @ u for k, u in self.roll_axes])
                      / np.radians(self.sigmas.roll_deg))
+        parts.append(np.array([(dx[i, 6] + self.log_scale[i] - dx[j, 6] - self.log_scale[j]
+                                - log_ratio) / sigma
+                               for i, j, log_ratio, sigma in self.ratios]))
         return np.concatenate(parts)
 
     def jac_sparsity(self) -> sparse.lil_matrix:
@@ -195,6 +245,7 @@ class _JointProblem:
         blocks = [(3 * len(c), (k,)) for k, c in enumerate(self.centres_model)]
         blocks += [(6 * len(rows_i), (i, j)) for i, j, rows_i, _ in self.pairs]
         blocks += [(1, (k,)) for k, _ in self.roll_axes]
+        blocks += [(1, (i, j)) for i, j, _, _ in self.ratios]
         out = sparse.lil_matrix((sum(n for n, _ in blocks), 7 * len(self.windows)), dtype=int)
         row = 0
         for n, ks in blocks:

@@ -125,17 +125,21 @@ def mapped_frames(windows: list[tuple[int, int]], step: int,
 @dataclass(frozen=True)
 class WindowPoses:
     """A window's reconstruction: ``frame_idx`` (K,) journey frame indices of the registered frames,
-    ``T_model_cam`` (K, 4, 4) in the window's own model frame (arbitrary scale)."""
+    ``T_model_cam`` (K, 4, 4) in the window's own model frame (arbitrary scale);
+    ``keypoint_depths`` (K entries, or None): per frame its keypoints with a 3D point and their
+    depths in model units (``WindowResult.keypoint_depths``)."""
 
     window: tuple[int, int]
     frame_idx: np.ndarray
     T_model_cam: np.ndarray
+    keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
 def window_poses(windows: list[tuple[int, int]], results: list[WindowResult],
                  frame_names: list[str]) -> list[WindowPoses]:
     index = {name: i for i, name in enumerate(frame_names)}
-    return [WindowPoses(w, np.array([index[n] for n in r.image_names], dtype=int), r.T_model_cam)
+    return [WindowPoses(w, np.array([index[n] for n in r.image_names], dtype=int), r.T_model_cam,
+                        r.keypoint_depths)
             for w, r in zip(windows, results) if len(r.image_names) >= 3]
 
 

@@ -22,7 +22,7 @@ from app.pipeline.types import CameraModel, Journey, StageReport
 class JourneyPlan:
     """``calib_windows`` empty: nothing to self-calibrate on (no turn), or a known camera is
     reused. ``tracks``: one per pass of each sign track long enough to triangulate.
-    ``ego_windows``: frame ranges [start, end) to map, every ``ego_frame_step``-th frame plus the
+    ``ego_windows``: frame ranges [start, end) to map, every ``ego_step``-th frame plus the
     ``off_grid`` frames; ``ego_frames``: all the frames they map (sorted)."""
 
     turns: list[TurnWindow]
@@ -31,6 +31,7 @@ class JourneyPlan:
     ego_windows: list[tuple[int, int]]
     off_grid: np.ndarray
     ego_frames: np.ndarray
+    ego_step: int = 1
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
@@ -48,6 +49,7 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
+    ego_step = frame_step(s_m, config.ego_frame_step, config.ego_max_spacing_m)
     margin = config.sign_window_margin_frames
     tracks = [p for t in sign_tracks.group_detections(journey.detections, journey.frame_ids)
               for p in sign_tracks.split_passes(
@@ -56,14 +58,25 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
               if len(p.frame_idx) >= config.min_track_frames]
     ego_windows = ego_motion.plan_windows(tracks, len(journey.frames), margin=margin,
                                           max_frames=config.ego_max_frames_per_window,
-                                          step=config.ego_frame_step,
+                                          step=ego_step,
                                           overlap=config.ego_window_overlap_frames,
                                           bridge_gap=config.ego_bridge_gap_frames)
-    off_grid = ego_motion.off_grid_frames(tracks, config.ego_frame_step, config.min_track_frames)
+    off_grid = ego_motion.off_grid_frames(tracks, ego_step, config.min_track_frames)
     return JourneyPlan(turns=turn_windows, calib_windows=calib_windows, tracks=tracks,
                        ego_windows=ego_windows, off_grid=off_grid,
-                       ego_frames=ego_motion.mapped_frames(ego_windows, config.ego_frame_step,
-                                                           off_grid))
+                       ego_frames=ego_motion.mapped_frames(ego_windows, ego_step, off_grid),
+                       ego_step=ego_step)
+
+
+def frame_step(s_m: np.ndarray, max_step: int, max_spacing_m: float) -> int:
+    """Map every n-th frame, n from ``max_step`` down to 1, so that mapped frames lie at most
+    ``max_spacing_m`` apart at the speed the car moves; ``s_m`` (N,) is the track length per
+    frame (flat while the car stands, which must not make it look slow)."""
+    step_m = np.diff(np.asarray(s_m, float))
+    moving = step_m[step_m > 0.05]
+    if moving.size == 0 or max_spacing_m <= 0:
+        return max_step
+    return int(min(max_step, max(1, np.floor(max_spacing_m / float(np.mean(moving))))))
 
 
 def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
@@ -78,5 +91,7 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
         summary = f"no turn of at least {config.turn_min_angle_deg:g} deg on the GPS track"
     planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
-               f"window(s) mapping {len(plan.ego_frames)} frames"]
+               f"window(s) mapping {len(plan.ego_frames)} frames (every {plan.ego_step}"
+               f"{'st' if plan.ego_step == 1 else 'nd' if plan.ego_step == 2 else 'th'} and "
+               "those of short tracks)"]
     return StageReport("turns", summary, tuple(turns_found + planned))
