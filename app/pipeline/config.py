@@ -141,6 +141,10 @@ class PipelineConfig(BaseModel):
     alignment_joint: bool = Field(
         True, description="align windows that share frames jointly (they must agree on those "
                           "frames) instead of each to GPS on its own")
+    alignment_unlink_broken: bool = Field(
+        True, description="a window whose own GPS alignment is off by more than the broken-"
+        "reconstruction limit (max_alignment_rms_gps_ratio) is not aligned jointly with its "
+        "neighbours, which it would bend")
     alignment_scale_ratio_sigma: float = Field(
         0.0, description="in the joint alignment, tie two windows' scales to the ratio of the "
         "depths they give the same keypoints of their shared frames, to at least this "

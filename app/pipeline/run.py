@@ -203,6 +203,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             poses, xyz_gps, joint=config.alignment_joint,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
                                      scale_ratio=config.alignment_scale_ratio_sigma or None),
+            max_independent_rms_m=(place_signs.alignment_limit_m(journey.gps_noise_m, config)
+                                   if config.alignment_unlink_broken else None),
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
         entry.take(align.report(len(poses), aligned, dropped))

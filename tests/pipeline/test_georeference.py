@@ -219,3 +219,33 @@ def test_windows_aligned_apart_are_not_mixed():
     full = track_poses(track, aligned, T_world_cam[:, :3, 3], mode="full", margin=15,
                        min_frames=10)
     assert full.keep.sum() == len(range(64, 100, STEP))
+
+
+def _bent(poses: WindowPoses) -> WindowPoses:
+    """The window with its second half scaled up by 30 % about its middle frame: a reconstruction
+    that went wrong halfway (corpus c0016), which no similarity fits."""
+    T = poses.T_model_cam.copy()
+    mid = len(T) // 2
+    T[mid:, :3, 3] = T[mid, :3, 3] + 1.3 * (T[mid:, :3, 3] - T[mid, :3, 3])
+    return WindowPoses(poses.window, poses.frame_idx, T)
+
+
+def test_a_broken_window_is_not_allowed_to_bend_its_neighbours():
+    rng = np.random.default_rng(5)
+    T_world_cam = _level_poses(_turning_track())
+    poses = _windows(T_world_cam, CHAIN, rng)
+    poses[1] = _bent(poses[1])
+    xyz_gps = _gps(rng, T_world_cam[:, :3, 3], white_m=0.2, bias_m=0.1)
+    alone = [align_window(p, xyz_gps).info["rms_m"] for p in poses]
+    limit_m = 1.0
+    assert alone[1] > limit_m > max(alone[0], alone[2], alone[3])
+    dragged = align_windows(poses, xyz_gps)
+    kept = align_windows(poses, xyz_gps, max_independent_rms_m=limit_m)
+    good = [0, 2, 3]
+    # Joined to the broken window, its neighbour follows the GPS a third worse than alone ...
+    assert dragged[0].info["rms_m"] > 1.2 * alone[0]
+    # ... kept apart, it is as good as alone, and the good windows' cameras are closer to the truth.
+    assert kept[0].info["rms_m"] == pytest.approx(alone[0])
+    assert (_centre_error_m([kept[k] for k in good], T_world_cam)
+            < 0.75 * _centre_error_m([dragged[k] for k in good], T_world_cam))
+    assert "joint_windows" not in kept[1].info and kept[2].info["joint_windows"] == 2

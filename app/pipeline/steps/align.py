@@ -69,6 +69,7 @@ ROBUST_SCALE_SIGMAS = 2.0
 
 def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool = True,
                   sigmas: JointSigmas = JointSigmas(), min_shared_frames: int = 2,
+                  max_independent_rms_m: float | None = None,
                   on_dropped: Callable[[WindowPoses, str], None] | None = None
                   ) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
@@ -77,7 +78,11 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     roll); a window that cannot be (the car stood still) is logged, passed to
     ``on_dropped(window, reason)`` and left out. With ``joint``,
     windows linked by at least ``min_shared_frames`` common registered frames are then aligned
-    together (``_align_group``); a window linked to none keeps its own alignment.
+    together (``_align_group``); a window linked to none keeps its own alignment. A window whose
+    own alignment leaves more than ``max_independent_rms_m`` of GPS residual is a broken
+    reconstruction: it is linked to none, since the shared frames' agreement would bend its
+    neighbours onto it (corpus c0016: a window following its fixes to 0.37 m was dragged to
+    13.7 m rms by two bent neighbours, and lost its signs).
     """
     aligned = []
     for p in poses:
@@ -89,7 +94,10 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
                 on_dropped(p, str(exc))
     if not joint:
         return aligned
-    for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames)):
+    linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
+                for w in aligned]
+    for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
+                                             linkable)):
         joint_windows = ([aligned[group[0]]] if len(group) == 1 else
                          _align_group([aligned[k] for k in group], xyz_gps, sigmas))
         for k, window in zip(group, joint_windows):
@@ -152,8 +160,10 @@ def scale_ratio(a: WindowPoses, b: WindowPoses, min_points: int = 20) -> ScaleRa
     return ScaleRatio(median, 1.2533 * spread / np.sqrt(independent), len(logs))
 
 
-def _linked_groups(poses: list[WindowPoses], min_shared: int) -> list[list[int]]:
-    """Indices of ``poses`` grouped by chains of windows sharing >= ``min_shared`` frames."""
+def _linked_groups(poses: list[WindowPoses], min_shared: int,
+                   linkable: list[bool] | None = None) -> list[list[int]]:
+    """Indices of ``poses`` grouped by chains of windows sharing >= ``min_shared`` frames; a
+    window not ``linkable`` is a group of its own."""
     group = list(range(len(poses)))
 
     def root(k: int) -> int:
@@ -161,9 +171,11 @@ def _linked_groups(poses: list[WindowPoses], min_shared: int) -> list[list[int]]
             k = group[k]
         return k
 
+    linkable = linkable or [True] * len(poses)
     for i in range(len(poses)):
         for j in range(i + 1, len(poses)):
-            if len(_shared_rows(poses[i], poses[j])[0]) >= min_shared:
+            if (linkable[i] and linkable[j]
+                    and len(_shared_rows(poses[i], poses[j])[0]) >= min_shared):
                 group[root(j)] = root(i)
     out: dict[int, list[int]] = {}
     for k in range(len(poses)):

@@ -152,6 +152,14 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
                       GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n))
 
 
+def alignment_limit_m(gps_noise_m: float | None, config: PipelineConfig) -> float | None:
+    """The GPS residual rms (m) above which a window's reconstruction is taken as broken (None:
+    the GPS's noise is unknown, so no limit)."""
+    if gps_noise_m is None:
+        return None
+    return max(config.max_alignment_rms_gps_ratio * gps_noise_m, config.min_alignment_rms_reject_m)
+
+
 def check_reconstruction(alignment_rms_m: float, gps_noise_m: float | None,
                          config: PipelineConfig) -> None:
     """Raises TriangulationError when the reconstruction that poses a sign disagrees with the GPS
@@ -162,11 +170,8 @@ def check_reconstruction(alignment_rms_m: float, gps_noise_m: float | None,
     reconstructions (COLMAP mapping that went wrong, not always the same run to run) lay 8-59
     times off, and every sign they placed was 2-15 m from the truth.
     """
-    if gps_noise_m is None:
-        return
-    limit_m = max(config.max_alignment_rms_gps_ratio * gps_noise_m,
-                  config.min_alignment_rms_reject_m)
-    if alignment_rms_m > limit_m:
+    limit_m = alignment_limit_m(gps_noise_m, config)
+    if limit_m is not None and alignment_rms_m > limit_m:
         raise TriangulationError(
             f"the reconstruction around it disagrees with the GPS by {alignment_rms_m:.2f} m rms, "
             f"more than {config.max_alignment_rms_gps_ratio:g} x the GPS's own noise "
