@@ -17,6 +17,8 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report
@@ -124,18 +126,64 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
         record["ate"] = ev["ate"]
         record["sign_errors"] = ev["sign_errors"]
         record["unmatched_signs"] = ev["unmatched_signs"]
-        record["missed_mappable"] = {i: _why_not(i, truth, ev["rejected"])
+        became = track_of_sign(truth, out.detections)
+        placed = {e["truth_id"]: tid for tid, e in ev["sign_errors"].items()}
+        unmatched = {u["track_id"]: u for u in ev["unmatched_signs"]}
+        record["missed_mappable"] = {i: _why_not(i, truth, ev["rejected"], became.get(i),
+                                                 placed, unmatched)
                                      for i in mappable if i not in found}
         record["rejected"] = ev["rejected"]
     return record
 
 
-def _why_not(sign_id: str, truth: dict, rejected: dict[str, str]) -> str:
-    """The pipeline's reason for not placing a mappable true sign, when its track was rejected."""
+def track_of_sign(truth: dict, detections) -> dict[str, str]:
+    """Per true sign id, the track its detections became in the pipeline: the track holding most
+    of its true boxes (same frame, IoU >= 0.5), where the bundle gave no track ids; ``detections``
+    as in ``RunOutput.detections``."""
+    by_frame: dict[str, list[tuple[str, np.ndarray]]] = {}
+    for frame_id, track_id, *box in detections:
+        by_frame.setdefault(frame_id, []).append((track_id, np.asarray(box, float)))
+    out = {}
+    for sign in truth["signs"]:
+        votes: dict[str, int] = {}
+        for ob in sign.get("observations", []):
+            box_true = ob.get("box_true")
+            if box_true is None:
+                continue
+            for track_id, box in by_frame.get(ob["frame"], []):
+                if _iou(box, np.asarray(box_true, float)) >= 0.5:
+                    votes[track_id] = votes.get(track_id, 0) + 1
+        if votes:
+            out[truth_id(sign)] = max(votes, key=votes.get)
+    return out
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | None = None,
+             placed: dict[str, str] | None = None, unmatched: dict[str, dict] | None = None) -> str:
+    """Why a mappable true sign was not placed: the pipeline's reason when its track (its own id,
+    or ``became``, the track its detections formed) was rejected; or that track's fate."""
     track = next((str(s.get("track_id", "")) for s in truth["signs"] if truth_id(s) == sign_id),
-                 "")
-    return rejected.get(track, "not placed, no reason given" if track else
-                        "not placed (the bundle has no track ids: see rejected)")
+                 "") or became or ""
+    if not track:
+        return "not placed: none of its detections is in a track"
+    if track in rejected:
+        return rejected[track]
+    if unmatched and track in unmatched:
+        u = unmatched[track]
+        return (f"placed as {track} {u['nearest_true_m']:.1f} m from the nearest true sign "
+                f"(counted {u['kind']})")
+    if placed and track in placed.values():
+        other = next(t for t, tid in placed.items() if tid == track)
+        return f"its track {track} was placed and matched to {other}"
+    return f"not placed, no reason given (track {track})"
 
 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,

@@ -41,6 +41,9 @@ class RunOutput:
     timings_s: dict[str, float]  # per stage, with "read" (bundle extraction) first
     peak_rss_mb: dict[str, float]
     cpu_s: float = float("nan")  # CPU time of the run and its children
+    # (frame_id, track_id, x1, y1, x2, y2) of every detection as the pipeline tracked it (track ids
+    # ``auto-k`` where the bundle had none): lets a bench say which track a true sign became.
+    detections: tuple[tuple[str, str, float, float, float, float], ...] = ()
 
     @property
     def fps(self) -> float:
@@ -90,7 +93,9 @@ def _run_in_child(task: RunTask) -> RunOutput:
     wall_s = time.perf_counter() - t0
     timings = {"read": round(read_s, 3), **(result.timings_s if result else {})}
     return RunOutput(task.label, result, error, len(journey.frames), wall_s, timings,
-                     peak_rss_mb(), cpu_seconds())
+                     peak_rss_mb(), cpu_seconds(),
+                     tuple((d.frame_id, d.track_id, d.x1, d.y1, d.x2, d.y2)
+                           for d in journey.detections))
 
 
 def run_isolated(task: RunTask) -> RunOutput:

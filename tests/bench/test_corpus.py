@@ -226,3 +226,31 @@ def test_corpus_compare_puts_before_and_after_side_by_side(tmp_path):
     assert "| journeys run | 4 | 4 | 3 | 3 |" in table
     # A row only the after side has is shown, with a dash before.
     assert "| recall: mappable signs placed (≥ 5 frames, ≥ 12 px) | – | 5/6 (83 %) | – | 0/0 |" in table
+
+
+def test_a_missed_sign_of_a_bundle_without_track_ids_gets_the_reason_of_the_track_it_became():
+    from bench.corpus import _why_not, track_of_sign
+
+    def sign(sid, boxes):
+        return {"id": sid, "track_id": "", "observations": [
+            {"frame": f, "box_true": b} for f, b in boxes]}
+
+    truth = {"signs": [sign("s00", [("000001", [10, 10, 30, 30]), ("000002", [12, 10, 32, 30])]),
+                       sign("s01", [("000001", [100, 50, 120, 70])]),
+                       sign("s02", [("000003", [200, 50, 220, 70])]),
+                       sign("s03", [("000004", [300, 50, 320, 70])])]}
+    detections = [("000001", "auto-0", 11, 10, 31, 30), ("000002", "auto-0", 12, 11, 32, 31),
+                  ("000001", "auto-1", 101, 50, 121, 70), ("000003", "auto-2", 200, 50, 220, 70),
+                  ("000004", "auto-3", 400, 50, 420, 70)]  # s03's box was not detected there
+    became = track_of_sign(truth, detections)
+    assert became == {"s00": "auto-0", "s01": "auto-1", "s02": "auto-2"}
+    rejected = {"auto-0": "reprojection rms 9.1 px > 4.0"}
+    unmatched = {"auto-1": {"track_id": "auto-1", "nearest_true_m": 5.2, "kind": "false"}}
+    placed = {"s09": "auto-2"}
+    assert _why_not("s00", truth, rejected, became["s00"]) == "reprojection rms 9.1 px > 4.0"
+    assert _why_not("s01", truth, rejected, became["s01"], placed, unmatched) == (
+        "placed as auto-1 5.2 m from the nearest true sign (counted false)")
+    assert _why_not("s02", truth, rejected, became["s02"], placed, unmatched) == (
+        "its track auto-2 was placed and matched to s09")
+    assert _why_not("s03", truth, rejected, None) == (
+        "not placed: none of its detections is in a track")
