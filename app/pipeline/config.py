@@ -109,6 +109,10 @@ class PipelineConfig(BaseModel):
     # At 5 frames/s and 10-13 m/s every 2nd frame is 4-5 m from the next and KLT loses the
     # tracks: on the corpus's tuning half those journeys mapped 17 of their 36 mappable signs with
     # a step of 2, 24 with a step of 1 (2026-11-26).
+    ego_more_init_pairs: int = Field(
+        0, description="when a window cannot start from two frames match_overlap apart in its "
+        "middle, try up to this many other pairs (half the gap; a quarter and three quarters in) "
+        "before COLMAP's own choice, the most-matched neighbours, which can bend the window")
     ego_max_spacing_m: float = Field(
         2.5, description="map frames closer than this (metres, at the journey's moving speed): "
         "the step shrinks from ego_frame_step down to 1 when frames are farther apart")

@@ -46,8 +46,10 @@ class WindowRequest:
     use_position_priors: bool = False
     # Two of ``image_names`` to start the reconstruction from (None: COLMAP's choice, which favours
     # the most matched pair: neighbouring frames whose short forward baseline can fix a wrong
-    # relative pose that bundle adjustment never leaves). Falls back to COLMAP's choice on failure.
+    # relative pose that bundle adjustment never leaves). ``more_init_pairs`` are tried next, in
+    # order; COLMAP's choice comes last.
     init_pair: tuple[str, str] | None = None
+    more_init_pairs: tuple[tuple[str, str], ...] = ()
     # Write the final reconstruction to ``WindowResult.model_dir`` (for ``refine_jointly``).
     keep_model: bool = False
 
@@ -308,13 +310,14 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         **presets.mapper_knobs(job.mapping), image_names=list(window.image_names),
         num_threads=job.process.threads, use_prior_position=window.use_position_priors)
     empty = WindowResult([], np.zeros((0, 4, 4)), window.camera, n_input=len(window.image_names))
-    # The chosen initial pair first, then COLMAP's own choice (-1) if that one leads nowhere.
+    # The chosen initial pairs first, then COLMAP's own choice (-1) if they lead nowhere.
     pairs = [(-1, -1)]
     if window.init_pair is not None:
         with pycolmap.Database.open(db_path) as db:
             ids = {im.name: im.image_id for im in db.read_all_images()}
-        if all(name in ids for name in window.init_pair):
-            pairs.insert(0, tuple(ids[n] for n in window.init_pair))
+        chosen = [p for p in (window.init_pair, *window.more_init_pairs)
+                  if all(name in ids for name in p)]
+        pairs = [tuple(ids[n] for n in p) for p in chosen] + pairs
     models = None
     for id1, id2 in pairs:
         options.init_image_id1, options.init_image_id2 = id1, id2
@@ -327,8 +330,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         if models and max(r.num_reg_images() for r in models.values()) >= 3:
             break
         if id1 != -1:
-            log.warning("window %d: no reconstruction from the chosen initial pair %s; "
-                        "letting COLMAP choose", index, window.init_pair)
+            log.warning("window %d: no reconstruction from the initial pair of images %d and %d; "
+                        "trying the next", index, id1, id2)
     if not models:
         empty.error = error
         return empty

@@ -67,35 +67,50 @@ def _ceil_div(a: int, b: int) -> int:
 
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
              step: int = 1, extra: np.ndarray = np.zeros(0, int), position_priors: bool = False,
-             init_gap_frames: int | None = None) -> list[WindowRequest]:
+             init_gap_frames: int | None = None, more_init_pairs: int = 0
+             ) -> list[WindowRequest]:
     """One mapping request per window: its frames on the ``step`` grid (at 10 frames/s
     consecutive frames add little geometry but cost tracking, matching and registration time),
     and those of the ``extra`` frames that fall inside it (``off_grid_frames``).
 
     ``init_gap_frames``: start each reconstruction from two frames about this far apart in the
     window's middle (``init_pair``) instead of COLMAP's most-matched pair. It must not exceed the
-    matching overlap, or the two frames may never have been matched.
+    matching overlap, or the two frames may never have been matched. ``more_init_pairs``: how
+    many of the other pairs of ``_INIT_PAIRS`` to try when the window cannot start from that one,
+    before COLMAP's own choice.
     """
     out = []
     for a, b in windows:
         idx = window_frames((a, b), step, extra)
+        pairs: list[tuple[str, str]] = []
+        for share, at in (_INIT_PAIRS[:1 + more_init_pairs] if init_gap_frames else ()):
+            pair = _init_pair(list(range(a, b, step)), frame_names, step,
+                              max(1, int(share * init_gap_frames)), at)
+            if pair is not None and pair not in pairs:
+                pairs.append(pair)
         out.append(WindowRequest(image_names=[frame_names[i] for i in idx], camera=camera,
                                  use_position_priors=position_priors,
-                                 init_pair=_init_pair(list(range(a, b, step)), frame_names, step,
-                                                      init_gap_frames)))
+                                 init_pair=pairs[0] if pairs else None,
+                                 more_init_pairs=tuple(pairs[1:])))
     return out
 
 
+# (gap as a share of init_gap_frames, where in the window): the first pair, then the others
+# tried when a window cannot start from it.
+_INIT_PAIRS = ((1.0, 0.5), (0.5, 0.5), (1.0, 0.25), (1.0, 0.75))
+
+
 def _init_pair(idx: list[int], frame_names: list[str], step: int,
-               gap_frames: int | None) -> tuple[str, str] | None:
-    """Names of two mapped frames ``gap_frames`` (rounded down to the step) apart around the middle
-    of the window; None when no gap is asked for or the window is too short for it."""
+               gap_frames: int | None, at: float = 0.5) -> tuple[str, str] | None:
+    """Names of two mapped frames ``gap_frames`` (rounded down to the step) apart around the
+    ``at`` share of the window (0.5: its middle); None when no gap is asked for or the window is
+    too short for it."""
     if gap_frames is None:
         return None
     k = max(1, gap_frames // step)
     if len(idx) <= k:
         return None
-    first = max(0, (len(idx) - k) // 2)
+    first = int(at * (len(idx) - k))
     return frame_names[idx[first]], frame_names[idx[first + k]]
 
 
