@@ -230,3 +230,15 @@ def test_frames_far_apart_are_all_mapped_and_a_standing_car_does_not_count_as_sl
     stop_and_go = np.concatenate([np.zeros(100), np.arange(1, 101) * 2.0])
     assert frame_step(stop_and_go, 2, 2.5) == 1
     assert frame_step(np.zeros(50), 2, 2.5) == 2
+
+
+def test_more_initial_pairs_are_tried_with_half_the_gap_and_off_the_middle():
+    names = [f"{i:06d}.jpg" for i in range(100)]
+    (plain,) = ego_motion.requests([(0, 80)], names, CAMERA, step=2, init_gap_frames=8)
+    (more,) = ego_motion.requests([(0, 80)], names, CAMERA, step=2, init_gap_frames=8,
+                                  more_init_pairs=3)
+    assert plain.more_init_pairs == () and more.init_pair == plain.init_pair
+    assert plain.init_pair == (names[36], names[44])  # the middle of 40 mapped frames
+    assert more.more_init_pairs == ((names[38], names[42]),  # half the gap, in the middle
+                                    (names[18], names[26]),  # a quarter in
+                                    (names[54], names[62]))  # three quarters in
