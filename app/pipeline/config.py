@@ -106,18 +106,13 @@ class PipelineConfig(BaseModel):
     sign_window_margin_frames: int = Field(15, description="frames added before/after a sign track")
     ego_max_frames_per_window: int = 80
     ego_frame_step: int = Field(2, description="map every n-th frame near the signs")
-    # At 5 frames/s and 10-13 m/s every 2nd frame is 4-5 m from the next and KLT loses the
-    # tracks: on the corpus's tuning half those journeys mapped 17 of their 36 mappable signs with
-    # a step of 2, 24 with a step of 1 (2026-11-26).
-    ego_more_init_pairs: int = Field(
-        0, description="when a window cannot start from two frames match_overlap apart in its "
-        "middle, try up to this many other pairs (half the gap; a quarter and three quarters in) "
-        "before COLMAP's own choice, the most-matched neighbours, which can bend the window")
+    # At 5 frames/s and 10-13 m/s every 2nd frame is 4-5 m from the next. On the corpus's tuning
+    # half (2026-11-26) mapping every frame there placed 24 of those journeys' 36 mappable signs
+    # instead of 17; on the check half it placed 20 fewer and 7 more false signs (c0057, c0063,
+    # c0049): the step is not what decides, so the rule is off.
     ego_max_spacing_m: float = Field(
-        2.5, description="map frames closer than this (metres, at the journey's moving speed): "
-        "the step shrinks from ego_frame_step down to 1 when frames are farther apart")
-    # Chained windows let the joint alignment (``alignment_joint``) average the GPS bias over the
-    # chain instead of over one window (the synthetic bias stays correlated over ~40-60 frames).
+        0.0, description="if > 0, map frames closer than this (metres, at the journey's moving "
+        "speed): the step shrinks from ego_frame_step down to 1 when frames are farther apart")
     ego_window_overlap_frames: int = Field(
         16, description="frames consecutive windows of a stretch share (0: no chaining)")
     ego_bridge_gap_frames: int = Field(
