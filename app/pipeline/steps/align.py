@@ -155,7 +155,8 @@ def scale_ratio(a: WindowPoses, b: WindowPoses, min_points: int = 20) -> ScaleRa
     if len(logs) < min_points:
         return None
     median = float(np.median(logs))
-    spread = 1.4826 * float(np.median(np.abs(logs - median)))
+    spread = 1.4826 * float(np.median(np.abs(logs - median)))  # MAD -> Gaussian sigma
+    # A median's standard error is sqrt(pi / 2) = 1.2533 times the mean's.
     independent = max(1.0, len(logs) / max(1, len(rows_a)))
     return ScaleRatio(median, 1.2533 * spread / np.sqrt(independent), len(logs))
 
@@ -192,7 +193,9 @@ class _JointProblem:
     translation). Residuals, each divided by its sigma: (a) camera centres vs GPS, a frame's fix
     weighted 1/sqrt(number of windows posing it) so a shared frame counts once; (b) per frame
     posed by two windows, their world camera centres and rotations agree; (c) a window whose
-    roll about its road line is unobserved keeps its independent roll.
+    roll about its road line is unobserved keeps its independent roll; (d) with
+    ``sigmas.scale_ratio``, two linked windows' scales keep the ratio of the depths they give the
+    same keypoints (``scale_ratio``).
     """
 
     def __init__(self, windows: list[AlignedWindow], xyz_gps: np.ndarray, sigmas: JointSigmas):
