@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report
@@ -151,19 +152,11 @@ def track_of_sign(truth: dict, detections) -> dict[str, str]:
             if box_true is None:
                 continue
             for track_id, box in by_frame.get(ob["frame"], []):
-                if _iou(box, np.asarray(box_true, float)) >= 0.5:
+                if box_iou(box[None], np.asarray(box_true, float)[None])[0, 0] >= 0.5:
                     votes[track_id] = votes.get(track_id, 0) + 1
         if votes:
             out[truth_id(sign)] = max(votes, key=votes.get)
     return out
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = w * h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return float(inter / union) if union > 0 else 0.0
 
 
 def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | None = None,

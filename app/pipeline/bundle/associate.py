@@ -74,7 +74,7 @@ def _corners(state: np.ndarray) -> np.ndarray:
     return np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=-1)
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU of every box of ``a`` (T, 4) with every box of ``b`` (D, 4) -> (T, D)."""
     a, b = a[:, None, :], b[None, :, :]
     iw = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
@@ -98,7 +98,7 @@ def _cost_matrix(tracks: Sequence[_Track], track_cls: np.ndarray, det_state: np.
                     max_first_distance)[:, None]
     feasible = ((track_cls[:, None] == det_cls[None, :]) & (distance <= gate)
                 & (log_ratio <= np.log(max_scale_ratio)))
-    cost = distance + log_ratio + (1.0 - _iou(_corners(pred), _corners(det_state)))
+    cost = distance + log_ratio + (1.0 - box_iou(_corners(pred), _corners(det_state)))
     return np.where(feasible, cost, _GATED)
 
 
