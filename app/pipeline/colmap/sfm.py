@@ -52,6 +52,8 @@ class WindowRequest:
     more_init_pairs: tuple[tuple[str, str], ...] = ()
     # Write the final reconstruction to ``WindowResult.model_dir`` (for ``refine_jointly``).
     keep_model: bool = False
+    # Fill ``WindowResult.keypoint_depths`` (for the joint alignment's scale ratios).
+    keypoint_depths: bool = False
 
 
 @dataclass
@@ -343,7 +345,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                               function_tolerance=job.mapping.ba_function_tolerance,
                               aspect_sigma=job.mapping.aspect_prior_sigma,
                               threads=job.process.threads)
-    result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
+    result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
+                            with_depths=window.keypoint_depths)
     if window.keep_model:
         result.model_dir = out / "model"
         result.model_dir.mkdir()
@@ -383,12 +386,14 @@ def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) 
     return result
 
 
-def _window_result(rec, image_names: list[str], stage1: CameraModel | None) -> WindowResult:
+def _window_result(rec, image_names: list[str], stage1: CameraModel | None, *,
+                   with_depths: bool = False) -> WindowResult:
     names, T = registered_poses(rec, image_names)
     camera = camera_model(next(iter(rec.cameras.values())))
     return WindowResult(names, T, camera, stage1,
                         float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                        len(image_names), keypoint_depths=keypoint_depths(rec, names))
+                        len(image_names),
+                        keypoint_depths=keypoint_depths(rec, names) if with_depths else None)
 
 
 def keypoint_depths(rec, names: list[str]) -> list[tuple[np.ndarray, np.ndarray]]:

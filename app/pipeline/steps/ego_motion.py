@@ -67,8 +67,8 @@ def _ceil_div(a: int, b: int) -> int:
 
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
              step: int = 1, extra: np.ndarray = np.zeros(0, int), position_priors: bool = False,
-             init_gap_frames: int | None = None, more_init_pairs: int = 0
-             ) -> list[WindowRequest]:
+             init_gap_frames: int | None = None, more_init_pairs: int = 0,
+             keypoint_depths: bool = False) -> list[WindowRequest]:
     """One mapping request per window: its frames on the ``step`` grid (at 10 frames/s
     consecutive frames add little geometry but cost tracking, matching and registration time),
     and those of the ``extra`` frames that fall inside it (``off_grid_frames``).
@@ -77,7 +77,7 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
     window's middle (``init_pair``) instead of COLMAP's most-matched pair. It must not exceed the
     matching overlap, or the two frames may never have been matched. ``more_init_pairs``: how
     many of the other pairs of ``_INIT_PAIRS`` to try when the window cannot start from that one,
-    before COLMAP's own choice.
+    before COLMAP's own choice. ``keypoint_depths``: have each result carry its keypoints' depths.
     """
     out = []
     for a, b in windows:
@@ -91,7 +91,8 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
         out.append(WindowRequest(image_names=[frame_names[i] for i in idx], camera=camera,
                                  use_position_priors=position_priors,
                                  init_pair=pairs[0] if pairs else None,
-                                 more_init_pairs=tuple(pairs[1:])))
+                                 more_init_pairs=tuple(pairs[1:]),
+                                 keypoint_depths=keypoint_depths))
     return out
 
 
