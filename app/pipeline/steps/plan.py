@@ -91,7 +91,6 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
         summary = f"no turn of at least {config.turn_min_angle_deg:g} deg on the GPS track"
     planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
-               f"window(s) mapping {len(plan.ego_frames)} frames (every {plan.ego_step}"
-               f"{'st' if plan.ego_step == 1 else 'nd' if plan.ego_step == 2 else 'th'} and "
-               "those of short tracks)"]
+               f"window(s) mapping {len(plan.ego_frames)} frames (one in {plan.ego_step}, and "
+               "every frame of short tracks)"]
     return StageReport("turns", summary, tuple(turns_found + planned))
