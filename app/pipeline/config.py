@@ -139,6 +139,10 @@ class PipelineConfig(BaseModel):
     gps_alt_sigma_m: float = 1.0
 
     # Alignment to GPS.
+    gps_smoothing: bool = Field(
+        False, description="align the reconstruction to frame positions from a smoothing spline "
+        "through the GPS fixes (its smoothing chosen by cross-validation) instead of straight "
+        "lines between fixes, which pass through every fix's noise and cut curves' corners")
     # "full": each window's (or chain's, ``alignment_joint``) alignment; "short": again over the
     # frames around each sign, as the paper did against ORB-SLAM drift. Full measured better on
     # loop-300 (abs median 0.314 m against 0.727 m, bench 2026-11-23).

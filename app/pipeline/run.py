@@ -21,7 +21,7 @@ import numpy as np
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
 from app.pipeline.colmap.stage import StageSfm
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry import geodesy
+from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
@@ -122,6 +122,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                               config.metric_frame)
     xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg,
                               journey.alt_m if journey.has_altitude else None)
+    # Turn finding keeps the straight-line positions it was tuned on; alignment takes the spline's.
+    xyz_align = frame_positions(journey, origin, xyz_gps) if config.gps_smoothing else xyz_gps
 
     progress("turns", 0.0, "")
     t0 = time.perf_counter()
@@ -202,20 +204,22 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
         # A window that cannot be aligned (the car stood still through it) is dropped.
         dropped: list[str] = []
         aligned = align.align_windows(
-            poses, xyz_gps, joint=config.alignment_joint,
+            poses, xyz_align, joint=config.alignment_joint,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
                                      scale_ratio=config.alignment_scale_ratio_sigma or None),
             max_independent_rms_m=(place_signs.alignment_limit_m(journey.gps_noise_m, config)
                                    if config.alignment_unlink_broken else None),
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
+        if config.gps_smoothing:
+            aligned = align.with_residuals_to(aligned, xyz_gps)
         entry.take(align.report(len(poses), aligned, dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                                 "(the GPS track does not move enough around the signs)")
 
     with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
-        signs, rejected = place_signs.place_signs(tracks, aligned, xyz_gps, camera, journey,
+        signs, rejected = place_signs.place_signs(tracks, aligned, xyz_align, camera, journey,
                                                   origin, config)
     journal.add(place_signs.report(signs, rejected))
 
@@ -226,10 +230,26 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     progress("done", 1.0, f"{len(signs)} signs")
     return JourneyResult(calib, signs, rejected, clock.timings_s,
                          trajectory_frame_ids=[journey.frames[i].frame_id for i in traj_idx],
-                         trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_gps[traj_idx],
+                         trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_align[traj_idx],
                          trajectory_T_world_cam=traj_T,
                          origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m),
                          report=journal.reports)
+
+
+def frame_positions(journey: Journey, origin: geodesy.LocalFrame,
+                    xyz_linear: np.ndarray) -> np.ndarray:
+    """(N, 3) frame positions in ``origin``'s frame from a smoothing spline through the journey's
+    GPS fixes (``geometry.gps_track``); ``xyz_linear`` where the journey kept no fixes."""
+    fixes = journey.gps_fixes
+    if fixes is None:
+        return xyz_linear
+    xyz_fix = origin.to_local(fixes.lat_deg, fixes.lon_deg,
+                              fixes.alt_m if journey.has_altitude else None)
+    if not (journey.has_altitude and np.all(np.isfinite(fixes.alt_m))):
+        xyz_fix[:, 2] = np.nan  # altitude missing somewhere: the vertical stays as read
+    t_frame_s = np.array([f.timestamp_s for f in journey.frames])
+    return gps_track.smoothed_positions(t_frame_s, xyz_linear, fixes.timestamp_s, xyz_fix,
+                                        journey.gps_noise_m)
 
 
 def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,

@@ -89,6 +89,17 @@ class Detection:
         return (0.5 * (self.x1 + self.x2), 0.5 * (self.y1 + self.y2))
 
 
+@dataclass(frozen=True)
+class GpsTrack:
+    """The GPS fixes a journey's frame positions were interpolated from, in time order: arrays
+    (M,); ``alt_m`` NaN where a fix has none."""
+
+    timestamp_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+
+
 @dataclass
 class Journey:
     """A validated journey bundle, ready for the pipeline.
@@ -113,6 +124,8 @@ class Journey:
     # White-noise sigma (m, per horizontal axis) of the GPS fixes, None when too few to tell
     # (geometry.gps_noise).
     gps_noise_m: float | None = None
+    # The fixes themselves (None: one EXIF fix per frame, which lat_deg etc. already are).
+    gps_fixes: GpsTrack | None = None
 
     @property
     def has_altitude(self) -> bool:

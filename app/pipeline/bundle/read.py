@@ -40,7 +40,7 @@ from app.pipeline.bundle.gps import FrameGps, gps_from_csv, gps_from_gpx
 from app.pipeline.bundle.gps_exif import gps_from_exif, read_exif_fix
 from app.pipeline.bundle.manifest import Manifest, parse_manifest
 from app.pipeline.bundle.zip import BundleLimits, BundleZip, open_bundle
-from app.pipeline.types import BundleError, Frame, Journey
+from app.pipeline.types import BundleError, Frame, GpsTrack, Journey
 
 __all__ = ["BundleCheck", "BundleLimits", "check_bundle", "read_bundle"]
 
@@ -251,4 +251,7 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
                    lon_deg=gps.lon_deg, alt_m=gps.alt_m, detections=detections,
                    image_width=width, image_height=height, vehicle_id=m.vehicle_id,
                    captured_at=m.captured_at, camera_prior=prior, warnings=list(gps.warnings),
-                   gps_noise_m=gps.noise_m)
+                   gps_noise_m=gps.noise_m,
+                   gps_fixes=None if gps.fixes is None else GpsTrack(
+                       gps.fixes.timestamp_s, gps.fixes.lat_deg, gps.fixes.lon_deg,
+                       gps.fixes.alt_m))

@@ -105,6 +105,19 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     return aligned
 
 
+def with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray) -> list[AlignedWindow]:
+    """The windows with ``info["rms_m"]`` measured against the positions ``xyz`` (N, 3) instead
+    of those they were aligned to (kept as ``rms_fit_m``). Aligned to smoothed GPS positions, a
+    window's residual no longer holds the GPS's white noise, while the broken-reconstruction
+    check and the sign uncertainty were chosen on residuals to the fixes as read."""
+    out = []
+    for w in aligned:
+        d = w.T_world_cam[:, :3, 3] - xyz[w.poses.frame_idx]
+        rms_m = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+        out.append(replace(w, info={**w.info, "rms_m": rms_m, "rms_fit_m": w.info["rms_m"]}))
+    return out
+
+
 def report(n_windows: int, aligned: list[AlignedWindow], dropped: list[str]) -> StageReport:
     """The align stage's report: the windows aligned (their GPS residual) and those dropped
     (``dropped``: one line each, from ``align_windows(on_dropped=...)``)."""
