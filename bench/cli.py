@@ -136,6 +136,27 @@ def _add_turns_parser(bench_sub) -> None:
     t.set_defaults(func=run_turns_command)
 
 
+def run_gps_scale_command(args) -> int:
+    from bench.gps_scale import run
+
+    print(run(args.n, args.seed, args.half))
+    return 0
+
+
+def _add_gps_scale_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "gps-scale", help="window scale error from GPS alone, straight lines vs spline "
+        "between fixes, over corpus journeys (no rendering)",
+        description="Draws the journeys `signmap synth corpus --n N --seed S` would render, "
+        "without their pixels, fits each ego-motion-sized window of true camera centres to its "
+        "frames' GPS positions, and prints the scale error per GPS kind, half and way of placing "
+        "frames between fixes.")
+    g.add_argument("--n", type=int, default=64, help="journeys (default 64)")
+    g.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    g.add_argument("--half", choices=("tuning", "check"), help="one half only")
+    g.set_defaults(func=run_gps_scale_command)
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -254,6 +275,7 @@ def add_parsers(sub) -> None:
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
     _add_turns_parser(bench_sub)
+    _add_gps_scale_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "

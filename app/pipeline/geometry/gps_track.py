@@ -27,6 +27,10 @@ PIECE_OVERLAP = 50
 # is not believed, and that axis keeps the straight lines. A right smoothing leaves less than one.
 MAX_RESIDUAL_NOISE = 2.0
 MIN_RESIDUAL_M = 0.05  # ... or than this, for a near-perfect receiver
+# Fewer than 10 fixes (a short journey at 1 Hz) tell no noise (``geometry.gps_noise``), yet are where
+# lines cut curves the most; cross-validation then mostly interpolates them. Without a noise
+# figure, a spline further than this from the fixes (rms) is not believed.
+UNKNOWN_NOISE_MAX_RESIDUAL_M = 1.0
 
 
 def smoothed_positions(t_frame_s: np.ndarray, xyz_linear: np.ndarray, t_fix_s: np.ndarray,
@@ -35,23 +39,24 @@ def smoothed_positions(t_frame_s: np.ndarray, xyz_linear: np.ndarray, t_fix_s: n
     ``xyz_fix`` (M, 3) at ``t_fix_s`` (M,), per axis; outside it, ``xyz_linear`` (N, 3) (the
     linear interpolation and end extrapolation the bundle reader gave) shifted to meet the spline
     at the end fix. ``noise_m``: the fixes' white noise per axis (``geometry.gps_noise``; None:
-    unknown, so the lines are kept). An axis with a non-finite fix (altitude missing) or whose
-    spline strays from the fixes (MAX_RESIDUAL_NOISE) keeps ``xyz_linear``; fewer than MIN_FIXES
-    fixes keep it all."""
+    unknown). An axis with a non-finite fix (altitude missing) or whose spline strays from the
+    fixes (MAX_RESIDUAL_NOISE, UNKNOWN_NOISE_MAX_RESIDUAL_M) keeps ``xyz_linear``; fewer than
+    MIN_FIXES fixes keep it all."""
     out = np.array(xyz_linear, dtype=float, copy=True)
-    if len(t_fix_s) < MIN_FIXES or noise_m is None:
+    if len(t_fix_s) < MIN_FIXES:
         return out
     before, after = t_frame_s < t_fix_s[0], t_frame_s > t_fix_s[-1]
     # East and north are believed together or not at all: a path is not half a spline. GPS
     # altitude scatters about twice as much as the horizontal position.
-    for axes, axis_noise_m in (((0, 1), noise_m), ((2,), 2.0 * noise_m)):
+    for axes, noise_factor in (((0, 1), 1.0), ((2,), 2.0)):
         values = xyz_fix[:, axes]
         if not np.all(np.isfinite(values)):
             continue
         splines = [(make_smoothing_spline(t_fix_s[a:b], values[a:b, k]), k, (a, b), span)
                    for k in range(len(axes)) for (a, b), span in _pieces(t_fix_s)]
-        if any(np.sqrt(np.mean((spline(t_fix_s[a:b]) - values[a:b, k]) ** 2))
-               > max(MAX_RESIDUAL_NOISE * axis_noise_m, MIN_RESIDUAL_M)
+        max_residual_m = (UNKNOWN_NOISE_MAX_RESIDUAL_M if noise_m is None else
+                          max(MAX_RESIDUAL_NOISE * noise_factor * noise_m, MIN_RESIDUAL_M))
+        if any(np.sqrt(np.mean((spline(t_fix_s[a:b]) - values[a:b, k]) ** 2)) > max_residual_m
                for spline, k, (a, b), _ in splines):
             continue
         for spline, k, (a, b), (t_from, t_to) in splines:
