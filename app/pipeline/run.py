@@ -210,7 +210,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             max_independent_rms_m=(place_signs.alignment_limit_m(journey.gps_noise_m, config)
                                    if config.alignment_unlink_broken else None),
             on_dropped=lambda p, why: dropped.append(
-                f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"))
+                f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
+            xyz_check=xyz_gps if config.gps_smoothing else None)
         if config.gps_smoothing:
             aligned = align.with_residuals_to(aligned, xyz_gps)
         entry.take(align.report(len(poses), aligned, dropped))

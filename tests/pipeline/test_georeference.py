@@ -249,3 +249,22 @@ def test_a_broken_window_is_not_allowed_to_bend_its_neighbours():
     assert (_centre_error_m([kept[k] for k in good], T_world_cam)
             < 0.75 * _centre_error_m([dragged[k] for k in good], T_world_cam))
     assert "joint_windows" not in kept[1].info and kept[2].info["joint_windows"] == 2
+
+
+def test_a_broken_window_is_judged_against_the_fixes_as_read_when_aligned_to_smoothed_ones():
+    # Aligned to positions that follow it (here: the broken window's own aligned centres, the
+    # extreme of a spline hiding its bend), the broken window looks fine; judged against the fixes
+    # as read (``xyz_check``) it is kept apart as before.
+    rng = np.random.default_rng(5)
+    T_world_cam = _level_poses(_turning_track())
+    poses = _windows(T_world_cam, CHAIN, rng)
+    poses[1] = _bent(poses[1])
+    xyz_gps = _gps(rng, T_world_cam[:, :3, 3], white_m=0.2, bias_m=0.1)
+    bent = align_window(poses[1], xyz_gps)
+    xyz_hiding = xyz_gps.copy()
+    xyz_hiding[poses[1].frame_idx] = bent.T_world_cam[:, :3, 3]
+    limit_m = 1.0
+    fooled = align_windows(poses, xyz_hiding, max_independent_rms_m=limit_m)
+    judged = align_windows(poses, xyz_hiding, max_independent_rms_m=limit_m, xyz_check=xyz_gps)
+    assert fooled[1].info["joint_windows"] == 4
+    assert "joint_windows" not in judged[1].info and judged[2].info["joint_windows"] == 2

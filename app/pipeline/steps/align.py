@@ -70,8 +70,8 @@ ROBUST_SCALE_SIGMAS = 2.0
 def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool = True,
                   sigmas: JointSigmas = JointSigmas(), min_shared_frames: int = 2,
                   max_independent_rms_m: float | None = None,
-                  on_dropped: Callable[[WindowPoses, str], None] | None = None
-                  ) -> list[AlignedWindow]:
+                  on_dropped: Callable[[WindowPoses, str], None] | None = None,
+                  xyz_check: np.ndarray | None = None) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
 
     Each window is first aligned on its own (``align_window``, which handles the straight-road
@@ -82,7 +82,10 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     own alignment leaves more than ``max_independent_rms_m`` of GPS residual is a broken
     reconstruction: it is linked to none, since the shared frames' agreement would bend its
     neighbours onto it (corpus c0016: a window following its fixes to 0.37 m was dragged to
-    13.7 m rms by two bent neighbours, and lost its signs).
+    13.7 m rms by two bent neighbours, and lost its signs). That residual is measured against
+    ``xyz_check`` (N, 3) when given: the fixes as read, where ``xyz_gps`` is smoothed (a bent
+    window that lay 1.32 m off the fixes, just past c0016's limit, lay under it against the
+    smoothed positions, was linked, and dragged its chain 11.6 m off).
     """
     aligned = []
     for p in poses:
@@ -94,8 +97,9 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
                 on_dropped(p, str(exc))
     if not joint:
         return aligned
+    checked = aligned if xyz_check is None else with_residuals_to(aligned, xyz_check)
     linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
-                for w in aligned]
+                for w in checked]
     for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
                                              linkable)):
         joint_windows = ([aligned[group[0]]] if len(group) == 1 else
