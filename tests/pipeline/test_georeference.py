@@ -230,12 +230,17 @@ def _bent(poses: WindowPoses) -> WindowPoses:
     return WindowPoses(poses.window, poses.frame_idx, T)
 
 
-def test_a_broken_window_is_not_allowed_to_bend_its_neighbours():
+def _chain_with_a_bent_window():
+    """(T_world_cam, poses of CHAIN with window 1 bent, GPS) of the turning track."""
     rng = np.random.default_rng(5)
     T_world_cam = _level_poses(_turning_track())
     poses = _windows(T_world_cam, CHAIN, rng)
     poses[1] = _bent(poses[1])
-    xyz_gps = _gps(rng, T_world_cam[:, :3, 3], white_m=0.2, bias_m=0.1)
+    return T_world_cam, poses, _gps(rng, T_world_cam[:, :3, 3], white_m=0.2, bias_m=0.1)
+
+
+def test_a_broken_window_is_not_allowed_to_bend_its_neighbours():
+    T_world_cam, poses, xyz_gps = _chain_with_a_bent_window()
     alone = [align_window(p, xyz_gps).info["rms_m"] for p in poses]
     limit_m = 1.0
     assert alone[1] > limit_m > max(alone[0], alone[2], alone[3])
@@ -255,11 +260,7 @@ def test_a_broken_window_is_judged_against_the_fixes_as_read_when_aligned_to_smo
     # Aligned to positions that follow it (here: the broken window's own aligned centres, the
     # extreme of a spline hiding its bend), the broken window looks fine; judged against the fixes
     # as read (``xyz_check``) it is kept apart as before.
-    rng = np.random.default_rng(5)
-    T_world_cam = _level_poses(_turning_track())
-    poses = _windows(T_world_cam, CHAIN, rng)
-    poses[1] = _bent(poses[1])
-    xyz_gps = _gps(rng, T_world_cam[:, :3, 3], white_m=0.2, bias_m=0.1)
+    _, poses, xyz_gps = _chain_with_a_bent_window()
     bent = align_window(poses[1], xyz_gps)
     xyz_hiding = xyz_gps.copy()
     xyz_hiding[poses[1].frame_idx] = bent.T_world_cam[:, :3, 3]
