@@ -139,8 +139,11 @@ class PipelineConfig(BaseModel):
     gps_alt_sigma_m: float = 1.0
 
     # Alignment to GPS.
+    # On the 64-journey corpus's tuning half (true cameras, 2026-11-26): OXTS-like abs p90
+    # 0.78 -> 0.60 m, relative mean 0.21 -> 0.18 m, phone-like abs p90 5.9 -> 5.1 m; one journey
+    # (c0054) lost 5 signs to the broken-window check (bench/results/2026-11-26-gps-smoothing.md).
     gps_smoothing: bool = Field(
-        False, description="align the reconstruction to frame positions from a smoothing spline "
+        True, description="align the reconstruction to frame positions from a smoothing spline "
         "through the GPS fixes (its smoothing chosen by cross-validation) instead of straight "
         "lines between fixes, which pass through every fix's noise and cut curves' corners")
     # "full": each window's (or chain's, ``alignment_joint``) alignment; "short": again over the
