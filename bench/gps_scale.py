@@ -10,7 +10,8 @@ smoothing spline; windows of ``WINDOW_FRAMES`` frames every ``WINDOW_STRIDE`` (t
 windows' size and overlap at step 2) are fitted as the pipeline fits them
 (``similarity.align_trajectory``, gravity for a straight window's roll), and their scale error is
 reported per GPS kind and half: rms, median and 90th percentile of |error|. Windows where the car
-moves less than ``MIN_WINDOW_M`` are left out, as the pipeline drops them.
+moves less than ``MIN_WINDOW_M``, or that cannot be aligned, are left out, as the pipeline drops
+them.
 """
 
 from __future__ import annotations
@@ -64,9 +65,14 @@ def journey_scales(seed: int) -> JourneyScales:
         rows = slice(a, min(len(c_true), a + WINDOW_FRAMES))
         if np.linalg.norm(np.ptp(c_true[rows], axis=0)) < MIN_WINDOW_M:
             continue
-        for method, xyz in positions.items():
-            sim, _ = align_trajectory(c_true[rows], xyz[rows], T_true[rows, :3, :3])
-            errors[method].append(sim.scale - 1.0)
+        try:
+            scales = {method: align_trajectory(c_true[rows], xyz[rows],
+                                               T_true[rows, :3, :3])[0].scale
+                      for method, xyz in positions.items()}
+        except ValueError:  # degenerate (GPS standing still): the pipeline drops such windows
+            continue
+        for method, scale in scales.items():
+            errors[method].append(scale - 1.0)
     return JourneyScales(f"c{seed:04d}", params["half"], params["gps_kind"],
                          {m: np.array(e) for m, e in errors.items()})
 
