@@ -212,8 +212,6 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
             xyz_check=xyz_gps if config.gps_smoothing else None)
-        if config.gps_smoothing:
-            aligned = align.with_residuals_to(aligned, xyz_gps)
         entry.take(align.report(len(poses), aligned, dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "

@@ -85,7 +85,8 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     13.7 m rms by two bent neighbours, and lost its signs). That residual is measured against
     ``xyz_check`` (N, 3) when given: the fixes as read, where ``xyz_gps`` is smoothed (a bent
     window that lay 1.32 m off the fixes, just past c0016's limit, lay under it against the
-    smoothed positions, was linked, and dragged its chain 11.6 m off).
+    smoothed positions, was linked, and dragged its chain 11.6 m off); the windows returned then
+    report their residual (``info["rms_m"]``) against ``xyz_check`` too (``_with_residuals_to``).
     """
     aligned = []
     for p in poses:
@@ -95,31 +96,32 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
             log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
             if on_dropped is not None:
                 on_dropped(p, str(exc))
-    if not joint:
-        return aligned
-    checked = aligned if xyz_check is None else with_residuals_to(aligned, xyz_check)
-    linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
-                for w in checked]
-    for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
-                                             linkable)):
-        joint_windows = ([aligned[group[0]]] if len(group) == 1 else
-                         _align_group([aligned[k] for k in group], xyz_gps, sigmas))
-        for k, window in zip(group, joint_windows):
-            aligned[k] = replace(window, info={**window.info, "group": g})
-    return aligned
+    if joint:
+        checked = aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check)
+        linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
+                    for w in checked]
+        for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
+                                                 linkable)):
+            joint_windows = ([aligned[group[0]]] if len(group) == 1 else
+                             _align_group([aligned[k] for k in group], xyz_gps, sigmas))
+            for k, window in zip(group, joint_windows):
+                aligned[k] = replace(window, info={**window.info, "group": g})
+    return aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check)
 
 
-def with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray) -> list[AlignedWindow]:
+def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray) -> list[AlignedWindow]:
     """The windows with ``info["rms_m"]`` measured against the positions ``xyz`` (N, 3) instead
     of those they were aligned to (kept as ``rms_fit_m``). Aligned to smoothed GPS positions, a
     window's residual no longer holds the GPS's white noise, while the broken-reconstruction
     check and the sign uncertainty were chosen on residuals to the fixes as read."""
-    out = []
-    for w in aligned:
-        d = w.T_world_cam[:, :3, 3] - xyz[w.poses.frame_idx]
-        rms_m = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
-        out.append(replace(w, info={**w.info, "rms_m": rms_m, "rms_fit_m": w.info["rms_m"]}))
-    return out
+    return [replace(w, info={**w.info, "rms_fit_m": w.info["rms_m"],
+                             "rms_m": _centre_rms_m(w.T_world_cam, xyz[w.poses.frame_idx])})
+            for w in aligned]
+
+
+def _centre_rms_m(T_world_cam: np.ndarray, xyz: np.ndarray) -> float:
+    """Rms distance (m) of the camera centres of ``T_world_cam`` (K, 4, 4) from ``xyz`` (K, 3)."""
+    return float(np.sqrt(np.mean(np.sum((T_world_cam[:, :3, 3] - xyz) ** 2, axis=1))))
 
 
 def report(n_windows: int, aligned: list[AlignedWindow], dropped: list[str]) -> StageReport:
@@ -313,8 +315,7 @@ def _align_group(windows: list[AlignedWindow], xyz_gps: np.ndarray,
     out = []
     for w, sim, gps in zip(windows, sims, problem.xyz_gps):
         T_world_cam = sim.apply_poses(w.poses.T_model_cam)
-        rms_m = float(np.sqrt(np.mean(np.sum((T_world_cam[:, :3, 3] - gps) ** 2, axis=1))))
-        info = {**w.info, "rms_m": rms_m, "scale": sim.scale,
+        info = {**w.info, "rms_m": _centre_rms_m(T_world_cam, gps), "scale": sim.scale,
                 "rms_independent_m": w.info["rms_m"], "joint_windows": len(windows)}
         out.append(AlignedWindow(w.poses, sim, info, T_world_cam))
     log.info("joint alignment of windows %s: GPS rms %.3f -> %.3f m, shared frames disagree "
