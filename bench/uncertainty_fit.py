@@ -72,18 +72,34 @@ def sign_terms(records: list[dict]) -> list[SignTerms]:
 _Z2 = np.random.default_rng(0).standard_normal((4000, 2)) ** 2
 
 
+class _Signs:
+    """The terms of a list of signs as arrays, read once: a fit evaluates hundreds of knob values
+    on the same signs, and per-sign Python (an eigendecomposition each) dominated it."""
+
+    def __init__(self, signs: list[SignTerms]):
+        self.n = len(signs)
+        # Adding h * I to the triangulation block adds h to both of its eigenvalues.
+        self.lam_tri = np.array([np.clip(np.linalg.eigvalsh(s.cov_tri_h_m2), 0.0, None)
+                                 for s in signs]).reshape(-1, 2)                     # (S, 2)
+        self.noise = np.array([s.georef.averaged_noise_m2 for s in signs])         # (S,)
+        self.floor_w = np.array([s.georef.floor_weight for s in signs])            # (S,)
+        self.residual = np.array([s.georef.residual_m2 for s in signs])            # (S,)
+        self.err2 = np.array([s.h_err_m**2 for s in signs])                        # (S,)
+
+    def inside(self, knobs: Knobs) -> np.ndarray:
+        """(S,) bool: each sign's true position is inside its 95 % radius."""
+        h = (knobs.noise_gain * self.noise + self.floor_w * knobs.floor_m**2
+             + knobs.bias_ratio**2 * self.residual)
+        lam = np.clip(self.lam_tri + h[:, None], 1e-12, None)
+        mass_within_err = np.mean(_Z2 @ lam.T <= self.err2[None, :], axis=0)
+        return mass_within_err <= TARGET
+
+
 def coverage(signs: list[SignTerms], knobs: Knobs) -> tuple[float | None, int]:
     """(share of ``signs`` whose true position is inside their 95 % radius, how many signs)."""
     if not signs:
         return None, 0
-    # Adding h * I to the triangulation block adds h to both of its eigenvalues.
-    lam = np.array([np.clip(np.linalg.eigvalsh(s.cov_tri_h_m2), 0.0, None) for s in signs])
-    h = np.array([s.georef.horizontal_m2(knobs.floor_m, knobs.noise_gain, knobs.bias_ratio)
-                  for s in signs])
-    lam = np.clip(lam + h[:, None], 1e-12, None)                       # (S, 2)
-    err2 = np.array([s.h_err_m**2 for s in signs])                     # (S,)
-    mass_within_err = np.mean(_Z2 @ lam.T <= err2[None, :], axis=0)     # (S,)
-    return float(np.mean(mass_within_err <= TARGET)), len(signs)
+    return float(np.mean(_Signs(signs).inside(knobs))), len(signs)
 
 
 def fit(signs: list[SignTerms], floors_m=np.arange(0.0, 0.61, 0.05),
@@ -91,11 +107,14 @@ def fit(signs: list[SignTerms], floors_m=np.arange(0.0, 0.61, 0.05),
     """The knobs that bring the coverage on ``signs`` nearest to 95 %; among equals, those that
     bring each GPS kind nearest to 95 %, then the smallest radii (a grid: the coverage is a step
     function of the knobs)."""
-    groups = [g for kind in GPS_KINDS if (g := [s for s in signs if s.gps == kind])]
+    arrays = _Signs(signs)
+    kinds = np.array([s.gps for s in signs])
+    groups = [m for kind in GPS_KINDS if (m := kinds == kind).any()]
 
     def cost(k: Knobs) -> tuple[float, float, float]:
-        per_kind = sum((coverage(g, k)[0] - TARGET) ** 2 for g in groups)
-        return (round(abs(coverage(signs, k)[0] - TARGET), 4), round(per_kind, 6),
+        inside = arrays.inside(k)
+        per_kind = sum((float(np.mean(inside[m])) - TARGET) ** 2 for m in groups)
+        return (round(abs(float(np.mean(inside)) - TARGET), 4), round(per_kind, 6),
                 k.floor_m + k.bias_ratio)
     candidates = [Knobs(float(f), 1.0, float(r)) for f, r in itertools.product(floors_m, ratios)]
     return min(candidates, key=cost)
