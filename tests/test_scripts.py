@@ -185,8 +185,12 @@ def test_test_sh_uses_any_suitable_python(sandbox):
     assert log.read_text().splitlines() == [
         "python3 -m venv --clear .venv",
         "python -m pip install --quiet -e .[test]",
-        "python -m pytest -ra -m not slow",
+        "python -m pytest -ra -n auto --dist loadfile -m not slow",  # a worker per core
     ]
+    log.write_text("")
+    out = script(repo, bin_dir, "test.sh", SIGNMAP_TEST_WORKERS="0")
+    assert out.returncode == 0, out.stderr
+    assert log.read_text().splitlines()[-1] == "python -m pytest -ra -n 0 --dist loadfile"
 
 
 def test_demo_sh_checks_for_curl_and_jq_first(sandbox):
