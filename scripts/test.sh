@@ -7,7 +7,7 @@
 # with a "real-service tests skipped" section saying which and why; under CI=true they fail the run.
 # Tests run in one pytest-xdist worker per core (SIGNMAP_TEST_WORKERS overrides; 0: in this
 # process), a test file's tests in the same worker, so that a module's fixtures (a real stack, a
-# rendered corpus) are made once: about 1.6 times faster on 2 cores than one process.
+# rendered corpus) are made once: 1.4 times faster than one process on the 2-core machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh  # any Python >= 3.11 ($PYTHON, else python3.13 ... python3)
