@@ -77,7 +77,6 @@ class _Signs:
     on the same signs, and per-sign Python (an eigendecomposition each) dominated it."""
 
     def __init__(self, signs: list[SignTerms]):
-        self.n = len(signs)
         # Adding h * I to the triangulation block adds h to both of its eigenvalues.
         self.lam_tri = np.array([np.clip(np.linalg.eigvalsh(s.cov_tri_h_m2), 0.0, None)
                                  for s in signs]).reshape(-1, 2)                     # (S, 2)
