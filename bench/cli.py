@@ -72,7 +72,8 @@ def run_corpus_command(args) -> int:
                            names=[n for n in (args.names or "").split(",") if n] or None,
                            calibrate_only=args.calibrate_only, true_camera=args.true_camera,
                            config_overrides=dict(args.set or []), tag=args.tag,
-                           resume=args.resume)
+                           resume=args.resume, keep_dir=args.keep_reconstructions,
+                           replay_dir=args.replay)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -176,6 +177,11 @@ def _add_corpus_parser(bench_sub) -> None:
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")
     c.add_argument("--resume", action="store_true",
                    help="continue the latest run of this tag, skipping journeys it has")
+    c.add_argument("--keep-reconstructions", type=Path, metavar="DIR",
+                   help="keep each journey's reconstruction (up to ego-motion) in DIR")
+    c.add_argument("--replay", type=Path, metavar="DIR",
+                   help="only align and triangulate again, on the reconstructions kept in DIR "
+                        "(seconds per journey; only knobs of those stages may differ)")
     c.add_argument("--out", type=Path, default=argparse.SUPPRESS,
                    help="where the results go (default bench/results)")
     c.set_defaults(func=run_corpus_command)

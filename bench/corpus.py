@@ -22,17 +22,17 @@ import numpy as np
 from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
-from bench import corpus_report
+from bench import corpus_report, replay
 from bench.evaluate import truth_id
 from bench.metrics import RECALL_MIN_FRAMES, calibration_summary, evaluate_result, mappable_ids
-from bench.run_pipeline import RunOutput, RunTask, run_isolated
+from bench.run_pipeline import RunOutput, RunTask, detections_of, run_isolated
 from bench.runner import run_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
 
 CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
-RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides")
+RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of")
 
 
 class CorpusPaths(NamedTuple):
@@ -180,10 +180,13 @@ def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | 
 
 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
-                calibrate_only: bool, true_camera: bool = False) -> dict:
+                calibrate_only: bool, true_camera: bool = False, *,
+                keep_dir: Path | None = None, replay_dir: Path | None = None) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
-    that sign placement is measured on every journey, those without turns included."""
+    that sign placement is measured on every journey, those without turns included.
+    ``keep_dir``: keep its reconstruction there; ``replay_dir``: georeference the one kept there
+    instead of running the pipeline (``bench.replay``)."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
     known = None
@@ -191,9 +194,14 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
         cam = truth["camera"]
         known = CameraModel.from_params(cam["width"], cam["height"], cam)
         config = config.model_copy(update={"reuse_known_calibration": True})
+    if replay_dir is not None:
+        return journey_record(entry, _replayed(entry["name"], replay_dir, config), truth,
+                              calibrate_only=calibrate_only)
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
         task = RunTask(entry["name"], jdir / "bundle.zip", Path(tmp), config.model_dump(),
-                       known_camera=known, calibrate_only=calibrate_only)
+                       known_camera=known, calibrate_only=calibrate_only,
+                       keep_reconstruction=(None if keep_dir is None
+                                            else replay.path_for(keep_dir, entry["name"])))
         t0 = time.perf_counter()
         try:
             out = run_isolated(task)
@@ -201,6 +209,15 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
             out = RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
                             time.perf_counter() - t0, {}, {})
     return journey_record(entry, out, truth, calibrate_only=calibrate_only)
+
+
+def _replayed(name: str, replay_dir: Path, config: PipelineConfig) -> RunOutput:
+    """The journey's kept reconstruction georeferenced with ``config``, as a run's output (in
+    this process: no COLMAP runs)."""
+    journey, result, error, seconds = replay.replay(replay.path_for(replay_dir, name), config)
+    timings = {"read": 0.0, **(result.timings_s if result else {})}
+    return RunOutput(name, result, error, len(journey.frames), seconds, timings, {},
+                     detections=detections_of(journey))
 
 
 def read_jsonl(path: Path) -> tuple[dict | None, list[dict]]:
@@ -243,10 +260,16 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                limit: int | None = None, names: list[str] | None = None,
                calibrate_only: bool = False, true_camera: bool = False,
                config_overrides: dict[str, Any] | None = None,
-               tag: str = "", resume: bool = False) -> CorpusPaths:
+               tag: str = "", resume: bool = False, keep_dir: Path | None = None,
+               replay_dir: Path | None = None) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
-    .jsonl (records), .md, .json and .png into ``out_dir``."""
+    .jsonl (records), .md, .json and .png into ``out_dir``. ``keep_dir`` / ``replay_dir``: keep
+    each journey's reconstruction there, or only georeference those kept there (``bench.replay``);
+    a replayed record's ``timings_s`` up to ego-motion are the kept run's."""
     corpus_dir, out_dir = Path(corpus_dir), Path(out_dir)
+    if keep_dir is not None and replay_dir is not None:
+        raise ValueError("a replay keeps no reconstruction: give --keep-reconstructions or "
+                         "--replay, not both")
     overrides = dict(config_overrides or {})
     config = pipeline_config(overrides)
     index = load_corpus(corpus_dir)
@@ -258,7 +281,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
             "true_camera": true_camera,
-            "config_overrides": overrides, "tag": tag}
+            "config_overrides": overrides, "tag": tag,
+            "replay_of": None if replay_dir is None else str(Path(replay_dir).resolve())}
     meta.pop("quick", None)
     old_meta, records = read_jsonl(jsonl) if resume and jsonl.exists() else (None, [])
     if old_meta is not None:
@@ -278,7 +302,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
         f"already in {jsonl.name}")
     for i, entry in enumerate(todo, start=1):
         log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
-        record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera)
+        record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera,
+                             keep_dir=keep_dir, replay_dir=replay_dir)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"

@@ -29,6 +29,8 @@ class RunTask:
     # Drop the detections: with no sign track process_journey returns right after calibrating,
     # so a calibration study does not pay for ego-motion and triangulation.
     calibrate_only: bool = False
+    # Pickle what the stages up to ego-motion gave (``bench.replay``) to this file.
+    keep_reconstruction: Path | None = None
 
 
 @dataclass
@@ -70,7 +72,6 @@ def _progress(label: str):
 def _run_in_child(task: RunTask) -> RunOutput:
     from bench.metrics import cpu_seconds, peak_rss_mb
     from bench.naive import naive_journey
-    from app.pipeline.run import process_journey
 
     t0 = time.perf_counter()
     journey = read_bundle(task.bundle, task.workdir / "bundle")
@@ -86,16 +87,35 @@ def _run_in_child(task: RunTask) -> RunOutput:
         if task.naive:
             result = naive_journey(journey, config, task.workdir / "naive", progress=progress)
         else:
-            result = process_journey(journey, config, task.workdir / "work",
-                                     known_camera=task.known_camera, progress=progress)
+            result = _process(task, journey, config, progress)
     except PipelineError as exc:
         error = str(exc)
     wall_s = time.perf_counter() - t0
     timings = {"read": round(read_s, 3), **(result.timings_s if result else {})}
     return RunOutput(task.label, result, error, len(journey.frames), wall_s, timings,
-                     peak_rss_mb(), cpu_seconds(),
-                     tuple((d.frame_id, d.track_id, d.x1, d.y1, d.x2, d.y2)
-                           for d in journey.detections))
+                     peak_rss_mb(), cpu_seconds(), detections_of(journey))
+
+
+def _process(task: RunTask, journey: Journey, config: PipelineConfig, progress) -> JourneyResult:
+    """``process_journey``, keeping the reconstruction (or why there is none) when asked."""
+    from app.pipeline.run import georeference, reconstruct
+    from bench import replay
+
+    keep = task.keep_reconstruction
+    try:
+        recon = reconstruct(journey, config, task.workdir / "work",
+                            known_camera=task.known_camera, progress=progress)
+    except PipelineError as exc:
+        if keep is not None:
+            replay.keep(keep, journey, config, None, str(exc))
+        raise
+    if keep is not None:
+        replay.keep(keep, journey, config, recon, None)
+    return georeference(journey, recon, config, progress=progress)
+
+
+def detections_of(journey: Journey) -> tuple[tuple[str, str, float, float, float, float], ...]:
+    return tuple((d.frame_id, d.track_id, d.x1, d.y1, d.x2, d.y2) for d in journey.detections)
 
 
 def run_isolated(task: RunTask) -> RunOutput:

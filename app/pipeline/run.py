@@ -1,10 +1,10 @@
 """The journey pipeline end to end: one validated journey in, triangulated signs out.
 
 Stages (``steps``, one module each): turns (and the plan made from them, ``steps.plan``) ->
-calibrate -> ego_motion -> align -> triangulate (``steps.place_signs``). This module only
-orchestrates: it times the stages, reports progress as the fraction of the journey's expected
-work done (weighted once the plan says how many images each stage maps) and collects one
-``StageReport`` per stage that ran.
+calibrate -> ego_motion (``reconstruct``) -> align -> triangulate (``steps.place_signs``;
+``georeference``). This module only orchestrates: it times the stages, reports progress as the
+fraction of the journey's expected work done (weighted once the plan says how many images each
+stage maps) and collects one ``StageReport`` per stage that ran.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
+from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
                                 ProgressFn, StageReport, no_progress)
 
@@ -39,11 +40,12 @@ OTHER_STAGES = {"turns": 0.01, "align": 0.01, "triangulate": 0.03}
 class _Clock:
     """Stage timings, and progress as the fraction of the journey's expected work done."""
 
-    def __init__(self, progress: ProgressFn, weights: dict[str, float]):
-        self.timings_s: dict[str, float] = {}
+    def __init__(self, progress: ProgressFn, weights: dict[str, float], *,
+                 timings_s: dict[str, float] | None = None, done: float = 0.0):
+        self.timings_s: dict[str, float] = timings_s if timings_s is not None else {}
         self.progress = progress
         self.weights = weights
-        self.done = 0.0
+        self.done = done
 
     @contextmanager
     def stage(self, name: str, message: str = ""):
@@ -89,8 +91,8 @@ class _Journal:
     """One StageReport per stage that ran, in order; a PipelineError leaving a stage carries them
     all, the failing stage's last."""
 
-    def __init__(self) -> None:
-        self.reports: list[StageReport] = []
+    def __init__(self, reports: list[StageReport] | None = None) -> None:
+        self.reports: list[StageReport] = reports if reports is not None else []
 
     @contextmanager
     def stage(self, name: str):
@@ -107,12 +109,41 @@ class _Journal:
         self.reports.append(report)
 
 
+@dataclass(frozen=True)
+class Reconstruction:
+    """The journey up to ego-motion, as the georeferencing stages (align, triangulate) take it.
+
+    Plain data, so the corpus bench can keep it and run only the later stages again with other
+    knobs (``signmap bench corpus --replay``). ``xyz_gps`` (N, 3): frame positions in
+    ``origin``'s frame, straight lines between fixes; ``xyz_align`` (N, 3): the positions the
+    alignment takes (the smoothing spline's with ``gps_smoothing``). ``tracks`` empty: the
+    journey has no sign track, and no ego-motion ran."""
+
+    calib: Calibration
+    tracks: list[SignTrack]
+    poses: list[ego_motion.WindowPoses]
+    xyz_gps: np.ndarray
+    xyz_align: np.ndarray
+    origin: geodesy.LocalFrame
+    timings_s: dict[str, float]
+    reports: list[StageReport]
+
+
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                     known_camera: CameraModel | None = None, progress: ProgressFn = no_progress,
                     verbose: bool = False) -> JourneyResult:
     """Run every stage on ``journey``. ``known_camera``: an earlier calibration of this camera_id,
     used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason
     and the reports of the stages that ran (``PipelineError.report``)."""
+    recon = reconstruct(journey, config, workdir, known_camera=known_camera, progress=progress,
+                        verbose=verbose)
+    return georeference(journey, recon, config, progress=progress)
+
+
+def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
+                known_camera: CameraModel | None = None, progress: ProgressFn = no_progress,
+                verbose: bool = False) -> Reconstruction:
+    """The stages up to ego-motion: turns and plan, calibrate, ego_motion."""
     workdir.mkdir(parents=True, exist_ok=True)
     names = [f.path.name for f in journey.frames]
     journal = _Journal()
@@ -180,9 +211,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
     camera = calib.camera
 
     if not tracks:
-        return JourneyResult(calib, [], [], clock.timings_s,
-                             origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m),
-                             report=journal.reports)
+        return Reconstruction(calib, [], [], xyz_gps, xyz_align, origin, clock.timings_s,
+                              journal.reports)
 
     with journal.stage("ego_motion") as entry, \
             clock.stage("ego_motion", f"{len(ego_windows)} windows"):
@@ -199,6 +229,22 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
             raise PipelineError("ego_motion", "no window around the signs could be "
                                 "reconstructed: " + "; ".join(r.error or "too few frames registered"
                                                               for r in results))
+    return Reconstruction(calib, tracks, poses, xyz_gps, xyz_align, origin, clock.timings_s,
+                          journal.reports)
+
+
+def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig, *,
+                 progress: ProgressFn = no_progress) -> JourneyResult:
+    """The stages after ego-motion: align the windows to the GPS, triangulate the signs."""
+    origin, xyz_gps, xyz_align = recon.origin, recon.xyz_gps, recon.xyz_align
+    origin_lat_lon_alt = (origin.lat0_deg, origin.lon0_deg, origin.alt0_m)
+    if not recon.tracks:
+        return JourneyResult(recon.calib, [], [], dict(recon.timings_s),
+                             origin_lat_lon_alt=origin_lat_lon_alt, report=list(recon.reports))
+    journal = _Journal(list(recon.reports))
+    clock = _Clock(progress, OTHER_STAGES, timings_s=dict(recon.timings_s),
+                   done=1.0 - OTHER_STAGES["align"] - OTHER_STAGES["triangulate"])
+    tracks, poses, camera = recon.tracks, recon.poses, recon.calib.camera
 
     with journal.stage("align") as entry, clock.stage("align"):
         # A window that cannot be aligned (the car stood still through it) is dropped.
@@ -227,12 +273,11 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                                 return_index=True)
     traj_T = np.concatenate([w.T_world_cam for w in aligned])[first]
     progress("done", 1.0, f"{len(signs)} signs")
-    return JourneyResult(calib, signs, rejected, clock.timings_s,
+    return JourneyResult(recon.calib, signs, rejected, clock.timings_s,
                          trajectory_frame_ids=[journey.frames[i].frame_id for i in traj_idx],
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_align[traj_idx],
                          trajectory_T_world_cam=traj_T,
-                         origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m),
-                         report=journal.reports)
+                         origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports)
 
 
 def frame_positions(journey: Journey, origin: geodesy.LocalFrame,

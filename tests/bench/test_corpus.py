@@ -254,3 +254,32 @@ def test_a_missed_sign_of_a_bundle_without_track_ids_gets_the_reason_of_the_trac
         "its track auto-2 was placed and matched to s09")
     assert _why_not("s03", truth, rejected, None) == (
         "not placed: none of its detections is in a track")
+
+
+@pytest.mark.slow
+def test_a_replay_georeferences_the_kept_reconstruction_as_the_full_run_did(tmp_path: Path):
+    corpus = _fake_corpus(tmp_path / "corpus")
+    kept = tmp_path / "kept"
+    full = run_corpus(corpus, tmp_path / "out", true_camera=True, tag="full", keep_dir=kept)
+    [full_rec] = read_jsonl(full.jsonl)[1]
+    assert full_rec["status"] == "ok" and len(full_rec["sign_errors"]) >= 3
+    assert (kept / "c0000.pkl").is_file()
+
+    same = run_corpus(corpus, tmp_path / "out", true_camera=True, tag="same", replay_dir=kept)
+    meta, [same_rec] = read_jsonl(same.jsonl)
+    assert meta["replay_of"] == str(kept.resolve())
+    assert same_rec["sign_errors"] == full_rec["sign_errors"]  # bit for bit
+    assert same_rec["missed_mappable"] == full_rec["missed_mappable"]
+
+    # A georeferencing knob changes the outcome without mapping again...
+    short = run_corpus(corpus, tmp_path / "out", true_camera=True, tag="short", replay_dir=kept,
+                       config_overrides={"alignment": "short"})
+    [short_rec] = read_jsonl(short.jsonl)[1]
+    assert short_rec["status"] == "ok"
+    assert short_rec["sign_errors"] != full_rec["sign_errors"]
+    # ...and a knob that acts before the align stage is refused by name.
+    with pytest.raises(ValueError, match="klt_max_corners act before the align stage"):
+        run_corpus(corpus, tmp_path / "out", true_camera=True, tag="klt", replay_dir=kept,
+                   config_overrides={"klt_max_corners": 1200})
+    with pytest.raises(ValueError, match="not both"):
+        run_corpus(corpus, tmp_path / "out", keep_dir=kept, replay_dir=kept)
