@@ -23,7 +23,7 @@ from bench.run_pipeline import RunOutput, RunTask, run_isolated
 from bench.suite import JourneySpec, ensure_journey, full_suite, quick_suite
 
 BENCH_DIR = Path(__file__).resolve().parent
-OTHER_ALIGNMENT = {"short": "full", "full": "short"}
+OTHER_ALIGNMENT = {"short": "full", "full": "short", "local": "full"}
 NAIVE_ALIGNMENT = "one similarity"
 
 

@@ -149,8 +149,12 @@ class PipelineConfig(BaseModel):
     # "full": each window's (or chain's, ``alignment_joint``) alignment; "short": again over the
     # frames around each sign, as the paper did against ORB-SLAM drift. Full measured better on
     # loop-300 (abs median 0.314 m against 0.727 m, bench 2026-11-23).
-    alignment: Literal["short", "full"] = "full"
+    # "local": the full alignment's chain aligned again over the frames around each sign.
+    alignment: Literal["short", "full", "local"] = "full"
     short_alignment_min_frames: int = 10
+    short_alignment_margin_frames: int = Field(
+        15, description="short/local alignment: frames before and after a sign's track that its "
+                        "alignment takes in")
     alignment_joint: bool = Field(
         True, description="align windows that share frames jointly (they must agree on those "
                           "frames) instead of each to GPS on its own")

@@ -193,7 +193,7 @@ def test_a_straight_chain_does_not_roll(seed):
 def test_a_sign_spanning_two_chained_windows_takes_poses_from_both():
     """Frames 60-100 of CHAIN: 60-63 only in window 0, 80-99 only in window 1. In ``full`` mode
     every frame gets its pose (from the window covering most of the track, then its chain);
-    ``short`` keeps to that one window."""
+    ``short`` keeps to that one window; ``local`` keeps the chain's frames, aligned again."""
     rng = np.random.default_rng(3)
     T_world_cam = _level_poses(_turning_track())
     aligned = align_windows(_windows(T_world_cam, CHAIN[:2], rng), T_world_cam[:, :3, 3])
@@ -206,6 +206,12 @@ def test_a_sign_spanning_two_chained_windows_takes_poses_from_both():
     short = track_poses(track, aligned, T_world_cam[:, :3, 3], mode="short", margin=15,
                         min_frames=10)
     assert short.keep.sum() == len(range(64, 100, STEP))  # window 1 alone
+    local = track_poses(track, aligned, T_world_cam[:, :3, 3], mode="local", margin=15,
+                        min_frames=10)
+    assert local.keep.all()
+    # Exact GPS: aligning the chain again around the sign keeps the true poses.
+    np.testing.assert_allclose(local.T_world_cam, T_world_cam[frames], atol=1e-6)
+    assert local.alignment_rms_m < 1e-6
 
 
 def test_windows_aligned_apart_are_not_mixed():
@@ -269,3 +275,25 @@ def test_a_broken_window_is_judged_against_the_fixes_as_read_when_aligned_to_smo
     judged = align_windows(poses, xyz_hiding, max_independent_rms_m=limit_m, xyz_check=xyz_gps)
     assert fooled[1].info["joint_windows"] == 4
     assert "joint_windows" not in judged[1].info and judged[2].info["joint_windows"] == 2
+
+
+def test_local_alignment_takes_out_a_scale_error_the_window_alignment_leaves_near_a_sign():
+    """A window whose second half came out 5 % too large (monocular scale drift): one similarity
+    for the window leaves its frames there off by decimetres; ``local`` aligns the chain again over
+    the frames around the sign (exact GPS here) and gets them right."""
+    T_world_cam = _level_poses(_turning_track())
+    [window] = _windows(T_world_cam, [(0, 80)], np.random.default_rng(6))
+    T = window.T_model_cam.copy()
+    mid = len(T) // 2  # frame 40
+    T[mid:, :3, 3] = T[mid, :3, 3] + 1.05 * (T[mid:, :3, 3] - T[mid, :3, 3])
+    aligned = align_windows([WindowPoses(window.window, window.frame_idx, T)],
+                            T_world_cam[:, :3, 3])
+    frames = np.arange(56, 72, STEP)
+    track = SignTrack("9", "stop", frames, np.zeros((len(frames), 2)))
+
+    def centre_error_m(mode: str) -> float:
+        tp = track_poses(track, aligned, T_world_cam[:, :3, 3], mode=mode, margin=6,
+                         min_frames=5)
+        return float(np.abs(tp.T_world_cam[:, :3, 3] - T_world_cam[frames, :3, 3]).max())
+    assert centre_error_m("full") > 0.1
+    assert centre_error_m("local") < 1e-6

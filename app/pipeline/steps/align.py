@@ -347,7 +347,9 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
                 mode: str, margin: int, min_frames: int) -> TrackPoses | None:
     """Poses for a sign's frames. ``full``: from the window that reconstructed most of them,
     completed by the windows aligned jointly with it; ``short``: that window alone, aligned again
-    to the GPS around the sign (the paper's short trajectories)."""
+    to the GPS around the sign (the paper's short trajectories); ``local``: the ``full`` poses,
+    their chain aligned again to the GPS around the sign (so a sign spanning two windows keeps
+    all its frames)."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
 
@@ -356,20 +358,26 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
         return None
     if mode == "full":
         return _chained_poses(track, best, windows)
-    frame_idx = best.poses.frame_idx
+    if mode == "local":
+        frame_idx, T_world_cam = _chain_trajectory(best, windows)
+        start_rotation = np.eye(3)  # the chain is in the world already: keep its roll
+    else:
+        frame_idx, T_world_cam, start_rotation = best.poses.frame_idx, best.poses.T_model_cam, \
+            best.sim.R
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
+    fallback = _chained_poses(track, best, windows) if mode == "local" else \
+        TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
     if near.sum() < min_frames:
-        return TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
-    T_model_cam = best.poses.T_model_cam[near]
+        return fallback
     try:
-        sim, info = align_trajectory(T_model_cam[:, :3, 3], xyz_gps[frame_idx[near]],
-                                     T_model_cam[:, :3, :3], R_fallback=best.sim.R)
+        sim, info = align_trajectory(T_world_cam[near, :3, 3], xyz_gps[frame_idx[near]],
+                                     T_world_cam[near, :3, :3], R_fallback=start_rotation)
     except ValueError:  # the car stood still by this sign: the window's alignment must do
-        return TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
-    return TrackPoses(keep, sim.apply_poses(best.poses.T_model_cam[rows]), *_fit(info))
+        return fallback
+    return TrackPoses(keep, sim.apply_poses(T_world_cam[rows]), *_fit(info))
 
 
 def _fit(info: dict) -> tuple[float, int]:
@@ -377,17 +385,24 @@ def _fit(info: dict) -> tuple[float, int]:
     return float(info["rms_m"]), int(info.get("n", 0))
 
 
-def _chained_poses(track: SignTrack, best: AlignedWindow,
-                   windows: list[AlignedWindow]) -> TrackPoses:
-    """Poses of the track's frames from ``best`` and, for frames it did not pose, from the other
-    windows jointly aligned with it (they agree on shared frames to millimetres, so a sign may
-    span two windows of a chain)."""
+def _chain_trajectory(best: AlignedWindow, windows: list[AlignedWindow]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(frame_idx (F,), T_world_cam (F, 4, 4)) of every frame posed by ``best`` or by the windows
+    jointly aligned with it, sorted by frame; a frame two windows pose keeps ``best``'s pose."""
     group = best.info.get("group")
     chain = [best] + [w for w in windows if w is not best and group is not None
                       and w.info.get("group") == group]
     frame_idx, first = np.unique(np.concatenate([w.poses.frame_idx for w in chain]),
                                  return_index=True)
-    T_world_cam = np.concatenate([w.T_world_cam for w in chain])[first]
+    return frame_idx, np.concatenate([w.T_world_cam for w in chain])[first]
+
+
+def _chained_poses(track: SignTrack, best: AlignedWindow,
+                   windows: list[AlignedWindow]) -> TrackPoses:
+    """Poses of the track's frames from ``best`` and, for frames it did not pose, from the other
+    windows jointly aligned with it (they agree on shared frames to millimetres, so a sign may
+    span two windows of a chain)."""
+    frame_idx, T_world_cam = _chain_trajectory(best, windows)
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
     return TrackPoses(keep, T_world_cam[rows], *_fit(best.info))
