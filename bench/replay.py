@@ -27,7 +27,8 @@ from app.pipeline.types import Journey, PipelineError
 # windows), gps_smoothing (the positions kept), alignment_scale_ratio_sigma (it asks ego-motion
 # for keypoint depths), gps_sigma_m (ego-motion's pose priors).
 GEOREF_KNOBS = frozenset({
-    "alignment", "short_alignment_min_frames", "short_alignment_margin_frames", "alignment_joint",
+    "alignment", "short_alignment_min_frames", "short_alignment_margin_frames",
+    "local_alignment_weight", "alignment_joint",
     "alignment_unlink_broken",
     "max_reprojection_rms_px", "min_inlier_share", "max_sign_std_m", "min_ray_angle_deg",
     "max_alignment_rms_gps_ratio", "min_alignment_rms_reject_m", "merge_fragments_within_m",

@@ -152,6 +152,9 @@ class PipelineConfig(BaseModel):
     # "local": the full alignment's chain aligned again over the frames around each sign.
     alignment: Literal["short", "full", "local"] = "full"
     short_alignment_min_frames: int = 10
+    local_alignment_weight: float = Field(
+        1.0, description="local alignment: how much of the correction the GPS around a sign "
+                         "asks for is applied (0: the full alignment's poses, 1: all of it)")
     short_alignment_margin_frames: int = Field(
         15, description="short/local alignment: frames before and after a sign's track that its "
                         "alignment takes in")

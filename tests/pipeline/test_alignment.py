@@ -188,3 +188,14 @@ def test_scale_ratio_of_two_windows_from_the_depths_of_their_shared_keypoints():
     assert r is not None and r.n == 1200
     assert abs(r.log_ratio - np.log(4.0)) < 0.005 and 0 < r.sigma < 0.005
     assert scale_ratio(a, WindowPoses((2, 8), np.arange(2, 8), T, None)) is None
+
+
+def test_a_partial_similarity_goes_part_of_the_way_about_its_pivot():
+    sim = Sim3(1.1, Rotation.from_rotvec([0.0, 0.0, 0.2]).as_matrix(), np.array([3.0, -1.0, 0.5]))
+    pivot = np.array([10.0, 5.0, 1.0])
+    none, half, whole = (sim.partial(w, pivot) for w in (0.0, 0.5, 1.0))
+    np.testing.assert_allclose(none.apply(np.eye(3)), np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(whole.apply(np.eye(3)), sim.apply(np.eye(3)), atol=1e-12)
+    assert half.scale == pytest.approx(np.sqrt(1.1))
+    assert Rotation.from_matrix(half.R).magnitude() == pytest.approx(0.1)
+    np.testing.assert_allclose(half.apply(pivot), (pivot + sim.apply(pivot)) / 2, atol=1e-12)

@@ -43,6 +43,16 @@ class Sim3:
         R_inv = self.R.T
         return Sim3(1.0 / self.scale, R_inv, -(R_inv @ self.t) / self.scale)
 
+    def partial(self, weight: float, pivot: np.ndarray) -> "Sim3":
+        """This similarity taken ``weight`` of the way from the identity (0: identity, 1: itself):
+        its rotation angle and log scale times ``weight``, and ``pivot`` (3,) moved ``weight`` of
+        the way to where this similarity takes it."""
+        R = Rotation.from_rotvec(weight * Rotation.from_matrix(self.R).as_rotvec()).as_matrix()
+        scale = self.scale**weight
+        pivot = np.asarray(pivot, dtype=float)
+        target = pivot + weight * (self.apply(pivot) - pivot)
+        return Sim3(scale, R, target - scale * R @ pivot)
+
 
 def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = True,
             robust_max_error_m: float | None = None) -> Sim3:

@@ -344,12 +344,15 @@ class TrackPoses:
 
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
-                mode: str, margin: int, min_frames: int) -> TrackPoses | None:
+                mode: str, margin: int, min_frames: int, local_weight: float = 1.0
+                ) -> TrackPoses | None:
     """Poses for a sign's frames. ``full``: from the window that reconstructed most of them,
     completed by the windows aligned jointly with it; ``short``: that window alone, aligned again
     to the GPS around the sign (the paper's short trajectories); ``local``: the ``full`` poses,
     their chain aligned again to the GPS around the sign (so a sign spanning two windows keeps
-    all its frames)."""
+    all its frames), that correction taken ``local_weight`` of the way (``Sim3.partial``): over
+    a few seconds the GPS fixes scale about as well as the reconstruction holds it, so the best
+    estimate lies between the two."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
 
@@ -377,6 +380,10 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
                                      T_world_cam[near, :3, :3], R_fallback=start_rotation)
     except ValueError:  # the car stood still by this sign: the window's alignment must do
         return fallback
+    if mode == "local" and local_weight != 1.0:
+        sim = sim.partial(local_weight, T_world_cam[near, :3, 3].mean(0))
+        info = {**info, "rms_m": _centre_rms_m(sim.apply_poses(T_world_cam[near]),
+                                               xyz_gps[frame_idx[near]])}
     return TrackPoses(keep, sim.apply_poses(T_world_cam[rows]), *_fit(info))
 
 

@@ -135,8 +135,9 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
                config: PipelineConfig, gps_noise_m: float | None = None) -> PlacedPass:
     """One pass triangulated; raises TriangulationError with the reason it cannot be placed."""
     tp = align.track_poses(track, aligned, xyz_gps, mode=config.alignment,
-                                  margin=config.short_alignment_margin_frames,
-                                  min_frames=config.short_alignment_min_frames)
+                           margin=config.short_alignment_margin_frames,
+                           min_frames=config.short_alignment_min_frames,
+                           local_weight=config.local_alignment_weight)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
     check_reconstruction(tp.alignment_rms_m, gps_noise_m, config)
