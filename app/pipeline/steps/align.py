@@ -341,6 +341,9 @@ class TrackPoses:
     T_world_cam: np.ndarray
     alignment_rms_m: float  # GPS residual rms of the alignment that placed them
     alignment_n: int  # GPS fixes in that alignment
+    # GPS residual rms of the window's (or chain's) own alignment: whether the reconstruction
+    # broke is judged on it, since a fit over the few frames by a sign can follow a broken one.
+    window_rms_m: float
 
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
@@ -372,7 +375,7 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
     fallback = _chained_poses(track, best, windows) if mode == "local" else \
-        TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info))
+        TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info), best.info["rms_m"])
     if near.sum() < min_frames:
         return fallback
     try:
@@ -384,7 +387,7 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
         sim = sim.partial(local_weight, T_world_cam[near, :3, 3].mean(0))
         info = {**info, "rms_m": _centre_rms_m(sim.apply_poses(T_world_cam[near]),
                                                xyz_gps[frame_idx[near]])}
-    return TrackPoses(keep, sim.apply_poses(T_world_cam[rows]), *_fit(info))
+    return TrackPoses(keep, sim.apply_poses(T_world_cam[rows]), *_fit(info), best.info["rms_m"])
 
 
 def _fit(info: dict) -> tuple[float, int]:
@@ -412,4 +415,4 @@ def _chained_poses(track: SignTrack, best: AlignedWindow,
     frame_idx, T_world_cam = _chain_trajectory(best, windows)
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
-    return TrackPoses(keep, T_world_cam[rows], *_fit(best.info))
+    return TrackPoses(keep, T_world_cam[rows], *_fit(best.info), best.info["rms_m"])

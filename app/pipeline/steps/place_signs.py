@@ -140,7 +140,7 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
                            local_weight=config.local_alignment_weight)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
-    check_reconstruction(tp.alignment_rms_m, gps_noise_m, config)
+    check_reconstruction(tp.window_rms_m, gps_noise_m, config)
     px = undistort_pixels(camera, track.px[tp.keep])
     point, used = triangulate_inliers(
         tp.T_world_cam, px, camera.K, min_ray_angle_deg=config.min_ray_angle_deg,
