@@ -38,8 +38,14 @@ class GeorefTerms:
     residual_m2: float = 0.0
 
     @staticmethod
-    def of_alignment(alignment_rms_m: float, n_fixes: int) -> "GeorefTerms":
-        return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0, alignment_rms_m**2)
+    def of_alignment(alignment_rms_m: float, n_fixes: int,
+                     window_rms_m: float | None = None) -> "GeorefTerms":
+        """The terms of one alignment over ``n_fixes`` fixes; ``window_rms_m``: the residual of
+        the window (or chain) alignment when the sign's own alignment was fitted again over the
+        frames by the sign (``alignment`` short or local), whose small residual would hide the
+        bias it followed."""
+        residual_m = alignment_rms_m if window_rms_m is None else window_rms_m
+        return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0, residual_m**2)
 
     def horizontal_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0) -> float:
         """Variance per horizontal axis (m^2) these terms add, weighed by the knobs."""

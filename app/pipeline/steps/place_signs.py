@@ -150,7 +150,8 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
         raise TriangulationError(f"uncertainty {point.std_m:.2f} m > {config.max_sign_std_m} m")
     return PlacedPass(point, tp.T_world_cam[used], track.frame_idx[tp.keep][used],
                       tp.alignment_rms_m,
-                      GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n))
+                      GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n,
+                                               tp.window_rms_m))
 
 
 def alignment_limit_m(gps_noise_m: float | None, config: PipelineConfig) -> float | None:
