@@ -24,8 +24,9 @@ from app.pipeline.types import Journey, PipelineError
 
 # PipelineConfig knobs read only by the align and triangulate stages (``georeference``). Knobs
 # read earlier too are not here: min_track_frames (the plan), sign_window_margin_frames (the ego
-# windows), gps_smoothing (the positions kept), alignment_scale_ratio_sigma (it asks ego-motion
-# for keypoint depths), gps_sigma_m (ego-motion's pose priors).
+# windows), gps_smoothing (the positions kept), gps_sigma_m (ego-motion's pose priors), and
+# alignment_scale_ratio_sigma, which asks ego-motion for keypoint depths when it is not 0: a
+# replay may change it when the kept run had the depths, or set it to 0 (``DEPTH_KNOBS``).
 GEOREF_KNOBS = frozenset({
     "alignment", "short_alignment_min_frames", "short_alignment_margin_frames",
     "local_alignment_weight", "alignment_joint",
@@ -34,6 +35,9 @@ GEOREF_KNOBS = frozenset({
     "max_alignment_rms_gps_ratio", "min_alignment_rms_reject_m", "merge_fragments_within_m",
     "sign_georef_floor_m", "sign_georef_noise_gain", "sign_georef_bias_ratio",
 })
+
+
+DEPTH_KNOBS = frozenset({"alignment_scale_ratio_sigma"})
 
 
 def path_for(directory: Path, label: str) -> Path:
@@ -55,7 +59,8 @@ def keep(path: Path, journey: Journey, config: PipelineConfig,
 def differing_knobs(kept: dict, config: PipelineConfig) -> list[str]:
     """Knobs of ``config`` that differ from the kept run's and act before georeferencing."""
     now = config.model_dump()
-    return sorted(k for k in now if k not in GEOREF_KNOBS and now[k] != kept.get(k))
+    return sorted(k for k in now if k not in GEOREF_KNOBS and now[k] != kept.get(k)
+                  and not (k in DEPTH_KNOBS and (kept.get(k) or not now[k])))
 
 
 def replay(path: Path, config: PipelineConfig):
