@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from app.synth.journey import SynthConfig, write_bundle
@@ -283,3 +284,18 @@ def test_a_replay_georeferences_the_kept_reconstruction_as_the_full_run_did(tmp_
                    config_overrides={"klt_max_corners": 1200})
     with pytest.raises(ValueError, match="not both"):
         run_corpus(corpus, tmp_path / "out", keep_dir=kept, replay_dir=kept)
+
+
+def test_the_pooled_slope_removes_each_journeys_own_offset():
+    s = np.linspace(0.0, 200.0, 9)
+    # Error growing 0.2 m per 100 m in both journeys, one of them 1 m worse throughout: the median
+    # of each journey's slope and the pooled slope both say 0.2; noise-free, so no error.
+    journeys = [np.column_stack([s, 0.3 + 0.002 * s]), np.column_stack([s, 1.3 + 0.002 * s])]
+    slope, se = cr.pooled_slope(journeys)
+    assert slope == pytest.approx(0.2) and se == pytest.approx(0.0, abs=1e-9)
+    # Scattered signs with no trend: the slope stays within its standard error of 0.
+    rng = np.random.default_rng(0)
+    flat = [np.column_stack([s, 0.3 + rng.normal(0.0, 0.1, len(s))]) for _ in range(8)]
+    slope, se = cr.pooled_slope(flat)
+    assert abs(slope) < 3 * se and se > 0
+    assert cr.pooled_slope([]) == (None, None)
