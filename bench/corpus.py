@@ -213,8 +213,13 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
 
 def _replayed(name: str, replay_dir: Path, config: PipelineConfig) -> RunOutput:
     """The journey's kept reconstruction georeferenced with ``config``, as a run's output (in
-    this process: no COLMAP runs)."""
-    journey, result, error, seconds = replay.replay(replay.path_for(replay_dir, name), config)
+    this process: no COLMAP runs). A journey with nothing kept (its run's process died) is a
+    failed record, as it was in the kept run."""
+    path = replay.path_for(replay_dir, name)
+    if not path.is_file():
+        return RunOutput(name, None, f"no reconstruction kept in {replay_dir} (the kept run's "
+                         "process died?)", 0, 0.0, {}, {})
+    journey, result, error, seconds = replay.replay(path, config)
     timings = {"read": 0.0, **(result.timings_s if result else {})}
     return RunOutput(name, result, error, len(journey.frames), seconds, timings, {},
                      detections=detections_of(journey))
@@ -270,6 +275,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     if keep_dir is not None and replay_dir is not None:
         raise ValueError("a replay keeps no reconstruction: give --keep-reconstructions or "
                          "--replay, not both")
+    if replay_dir is not None and not Path(replay_dir).is_dir():
+        raise ValueError(f"--replay {replay_dir}: no such directory")
     overrides = dict(config_overrides or {})
     config = pipeline_config(overrides)
     index = load_corpus(corpus_dir)

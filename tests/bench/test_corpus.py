@@ -284,6 +284,13 @@ def test_a_replay_georeferences_the_kept_reconstruction_as_the_full_run_did(tmp_
                    config_overrides={"klt_max_corners": 1200})
     with pytest.raises(ValueError, match="not both"):
         run_corpus(corpus, tmp_path / "out", keep_dir=kept, replay_dir=kept)
+    with pytest.raises(ValueError, match="no such directory"):
+        run_corpus(corpus, tmp_path / "out", replay_dir=tmp_path / "nothing")
+    # A journey whose kept run left nothing (its process died) is a failed record.
+    (kept / "c0000.pkl").unlink()
+    gone = run_corpus(corpus, tmp_path / "out", true_camera=True, tag="gone", replay_dir=kept)
+    [gone_rec] = read_jsonl(gone.jsonl)[1]
+    assert gone_rec["status"] == "failed" and "no reconstruction kept" in gone_rec["error"]
 
 
 def test_the_pooled_slope_removes_each_journeys_own_offset():
