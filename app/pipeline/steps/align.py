@@ -364,30 +364,31 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
         return None
     if mode == "full":
         return _chained_poses(track, best, windows)
+    # The poses aligned again (``T_from_cam``: the chain's world poses, or the window's model
+    # poses), and those already placed, which stand when they cannot be aligned again.
     if mode == "local":
         frame_idx, T_world_cam = _chain_trajectory(best, windows)
-        start_rotation = np.eye(3)  # the chain is in the world already: keep its roll
+        T_from_cam, start_rotation = T_world_cam, np.eye(3)  # in the world: keep the chain's roll
     else:
-        frame_idx, T_world_cam, start_rotation = best.poses.frame_idx, best.poses.T_model_cam, \
-            best.sim.R
+        frame_idx, T_world_cam = best.poses.frame_idx, best.T_world_cam
+        T_from_cam, start_rotation = best.poses.T_model_cam, best.sim.R
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
+    placed = TrackPoses(keep, T_world_cam[rows], *_fit(best.info), best.info["rms_m"])
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
-    fallback = _chained_poses(track, best, windows) if mode == "local" else \
-        TrackPoses(keep, best.T_world_cam[rows], *_fit(best.info), best.info["rms_m"])
     if near.sum() < min_frames:
-        return fallback
+        return placed
     try:
-        sim, info = align_trajectory(T_world_cam[near, :3, 3], xyz_gps[frame_idx[near]],
-                                     T_world_cam[near, :3, :3], R_fallback=start_rotation)
+        sim, info = align_trajectory(T_from_cam[near, :3, 3], xyz_gps[frame_idx[near]],
+                                     T_from_cam[near, :3, :3], R_fallback=start_rotation)
     except ValueError:  # the car stood still by this sign: the window's alignment must do
-        return fallback
+        return placed
     if mode == "local" and local_weight != 1.0:
-        sim = sim.partial(local_weight, T_world_cam[near, :3, 3].mean(0))
-        info = {**info, "rms_m": _centre_rms_m(sim.apply_poses(T_world_cam[near]),
+        sim = sim.partial(local_weight, T_from_cam[near, :3, 3].mean(0))
+        info = {**info, "rms_m": _centre_rms_m(sim.apply_poses(T_from_cam[near]),
                                                xyz_gps[frame_idx[near]])}
-    return TrackPoses(keep, sim.apply_poses(T_world_cam[rows]), *_fit(info), best.info["rms_m"])
+    return TrackPoses(keep, sim.apply_poses(T_from_cam[rows]), *_fit(info), best.info["rms_m"])
 
 
 def _fit(info: dict) -> tuple[float, int]:
