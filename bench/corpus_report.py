@@ -133,14 +133,14 @@ def sign_error_stats(signed: list[dict]) -> dict:
     pooled within journeys with its standard error (``pooled_slope``)."""
     errs = [e for r in signed for e in (r.get("sign_errors") or {}).values()]
     covered = [e["within_r95"] for e in errs if e.get("within_r95") is not None]
-    slopes, spread = [], []
+    slopes, spanning = [], []  # spanning: each such journey's (s_m, abs_m) points
     for r in signed:
         pts = np.array([(e["s_m"], e["abs_m"]) for e in (r.get("sign_errors") or {}).values()
                         if e.get("s_m") is not None and e.get("abs_m") is not None], float)
         if len(pts) >= 3 and np.ptp(pts[:, 0]) > 50.0:
             slopes.append(100.0 * np.polyfit(pts[:, 0], pts[:, 1], 1)[0])
-            spread.append(pts)
-    pooled, pooled_se = pooled_slope(spread)
+            spanning.append(pts)
+    pooled, pooled_se = pooled_slope(spanning)
     rel = [e["rel_m"] for e in errs if e.get("rel_m") is not None and np.isfinite(e["rel_m"])]
     gps = [r["params"]["gps_white_sigma_m"] for r in signed
            if r.get("params", {}).get("gps_white_sigma_m") is not None]

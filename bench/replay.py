@@ -1,8 +1,8 @@
 """Keep each corpus journey's reconstruction, and run only the georeferencing stages on it again.
 
 Choosing an alignment or placement knob on the corpus's tuning half costs a full run per value
-(~45 min on two cores), nearly all of it calibration and ego-motion, which those knobs do not
-touch. ``signmap bench corpus --keep-reconstructions DIR`` pickles, per journey, what
+(~30 min for a half of 32 journeys, true cameras, 2026-11-26), nearly all of it ego-motion (and
+calibration), which those knobs do not touch. ``signmap bench corpus --keep-reconstructions DIR`` pickles, per journey, what
 ``app.pipeline.run.reconstruct`` returned (or the error that ended it) with the journey and the
 configuration it ran with; ``--replay DIR`` then runs ``app.pipeline.run.georeference`` on it with
 this run's knobs, in seconds per journey, and records it as a full run would.
@@ -29,14 +29,11 @@ from app.pipeline.types import Journey, PipelineError
 # replay may change it when the kept run had the depths, or set it to 0 (``DEPTH_KNOBS``).
 GEOREF_KNOBS = frozenset({
     "alignment", "short_alignment_min_frames", "short_alignment_margin_frames",
-    "local_alignment_weight", "alignment_joint",
-    "alignment_unlink_broken",
+    "local_alignment_weight", "alignment_joint", "alignment_unlink_broken",
     "max_reprojection_rms_px", "min_inlier_share", "max_sign_std_m", "min_ray_angle_deg",
     "max_alignment_rms_gps_ratio", "min_alignment_rms_reject_m", "merge_fragments_within_m",
     "sign_georef_floor_m", "sign_georef_noise_gain", "sign_georef_bias_ratio",
 })
-
-
 DEPTH_KNOBS = frozenset({"alignment_scale_ratio_sigma"})
 
 
