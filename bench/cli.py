@@ -158,6 +158,27 @@ def _add_gps_scale_parser(bench_sub) -> None:
     g.set_defaults(func=run_gps_scale_command)
 
 
+def run_pose_error_command(args) -> int:
+    from bench.pose_error import collect, table
+
+    print(table(collect(args.replay, args.corpus)))
+    return 0
+
+
+def _add_pose_error_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "pose-error", help="split each placed sign's relative error into what the detections, "
+        "the estimated rotations and the estimated centres cost",
+        description="Georeferences again the reconstructions a corpus run kept "
+        "(--keep-reconstructions) and triangulates each placed sign from its detections with "
+        "the true poses, estimated rotations with true centres, and true rotations with "
+        "estimated centres; prints the mean relative error of each per GPS kind.")
+    g.add_argument("--replay", type=Path, required=True,
+                   help="the directory a corpus run's --keep-reconstructions wrote")
+    g.add_argument("--corpus", type=Path, required=True, help="the corpus it ran on (truth)")
+    g.set_defaults(func=run_pose_error_command)
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -282,6 +303,7 @@ def add_parsers(sub) -> None:
     _add_corpus_parser(bench_sub)
     _add_turns_parser(bench_sub)
     _add_gps_scale_parser(bench_sub)
+    _add_pose_error_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "

@@ -155,6 +155,10 @@ class PipelineConfig(BaseModel):
     local_alignment_weight: float = Field(
         1.0, description="local alignment: how much of the correction the GPS around a sign "
                          "asks for is applied (0: the full alignment's poses, 1: all of it)")
+    interpolate_poses_max_gap_frames: int = Field(
+        0, description="a sign's detections in frames the ego-motion skipped (ego_frame_step) "
+        "are used with poses interpolated between posed frames at most this many frames apart "
+        "(0: only posed frames are used)")
     short_alignment_margin_frames: int = Field(
         15, description="short/local alignment: frames before and after a sign's track that its "
                         "alignment takes in")

@@ -272,6 +272,18 @@ def test_a_replay_georeferences_the_kept_reconstruction_as_the_full_run_did(tmp_
     assert same_rec["sign_errors"] == full_rec["sign_errors"]  # bit for bit
     assert same_rec["missed_mappable"] == full_rec["missed_mappable"]
 
+    # The pose-error split re-triangulates the same placed signs: its "placed" error is the
+    # bench's, and the renderer's own poses place them closer than the estimated ones do.
+    from bench.pose_error import collect, table
+    rows = collect(kept, corpus)
+    by_track = {r.track_id: r for r in rows}
+    assert set(by_track) <= set(full_rec["sign_errors"]) and len(rows) >= 3
+    for track_id, r in by_track.items():
+        assert r.rel_m["placed"] == pytest.approx(full_rec["sign_errors"][track_id]["rel_m"])
+    assert (np.mean([r.rel_m["true poses"] for r in rows])
+            < np.mean([r.rel_m["placed"] for r in rows]))
+    assert "| phone | " in table(rows)
+
     # A georeferencing knob changes the outcome without mapping again...
     short = run_corpus(corpus, tmp_path / "out", true_camera=True, tag="short", replay_dir=kept,
                        config_overrides={"alignment": "short"})

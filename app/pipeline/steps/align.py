@@ -23,6 +23,7 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from app.pipeline.geometry.pose_interpolation import fill_skipped
 from app.pipeline.geometry.similarity import Sim3, align_trajectory
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.steps.sign_tracks import SignTrack
@@ -347,15 +348,17 @@ class TrackPoses:
 
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
-                mode: str, margin: int, min_frames: int, local_weight: float = 1.0
-                ) -> TrackPoses | None:
+                mode: str, margin: int, min_frames: int, local_weight: float = 1.0,
+                fill_gap_frames: int = 0) -> TrackPoses | None:
     """Poses for a sign's frames. ``full``: from the window that reconstructed most of them,
     completed by the windows aligned jointly with it; ``short``: that window alone, aligned again
     to the GPS around the sign (the paper's short trajectories); ``local``: the ``full`` poses,
     their chain aligned again to the GPS around the sign (so a sign spanning two windows keeps
     all its frames), that correction taken ``local_weight`` of the way (``Sim3.partial``): over
     a few seconds the GPS fixes scale about as well as the reconstruction holds it, so the best
-    estimate lies between the two."""
+    estimate lies between the two. ``fill_gap_frames`` (full and local): the track's frames the
+    ego-motion skipped get poses interpolated between posed frames at most that many apart
+    (``geometry.pose_interpolation``; 0: none)."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
 
@@ -363,11 +366,12 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     if best is None or coverage(best) < 2:
         return None
     if mode == "full":
-        return _chained_poses(track, best, windows)
+        return _chained_poses(track, best, windows, fill_gap_frames)
     # The poses aligned again (``T_from_cam``: the chain's world poses, or the window's model
     # poses), and those already placed, which stand when they cannot be aligned again.
     if mode == "local":
-        frame_idx, T_world_cam = _chain_trajectory(best, windows)
+        frame_idx, T_world_cam = fill_skipped(*_chain_trajectory(best, windows),
+                                              track.frame_idx, fill_gap_frames)
         T_from_cam, start_rotation = T_world_cam, np.eye(3)  # in the world: keep the chain's roll
     else:
         frame_idx, T_world_cam = best.poses.frame_idx, best.T_world_cam
@@ -408,12 +412,13 @@ def _chain_trajectory(best: AlignedWindow, windows: list[AlignedWindow]
     return frame_idx, np.concatenate([w.T_world_cam for w in chain])[first]
 
 
-def _chained_poses(track: SignTrack, best: AlignedWindow,
-                   windows: list[AlignedWindow]) -> TrackPoses:
+def _chained_poses(track: SignTrack, best: AlignedWindow, windows: list[AlignedWindow],
+                   fill_gap_frames: int = 0) -> TrackPoses:
     """Poses of the track's frames from ``best`` and, for frames it did not pose, from the other
     windows jointly aligned with it (they agree on shared frames to millimetres, so a sign may
     span two windows of a chain)."""
-    frame_idx, T_world_cam = _chain_trajectory(best, windows)
+    frame_idx, T_world_cam = fill_skipped(*_chain_trajectory(best, windows), track.frame_idx,
+                                          fill_gap_frames)
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
     return TrackPoses(keep, T_world_cam[rows], *_fit(best.info), best.info["rms_m"])

@@ -137,7 +137,8 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
     tp = align.track_poses(track, aligned, xyz_gps, mode=config.alignment,
                            margin=config.short_alignment_margin_frames,
                            min_frames=config.short_alignment_min_frames,
-                           local_weight=config.local_alignment_weight)
+                           local_weight=config.local_alignment_weight,
+                           fill_gap_frames=config.interpolate_poses_max_gap_frames)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
     check_reconstruction(tp.window_rms_m, gps_noise_m, config)
