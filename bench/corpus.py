@@ -102,7 +102,8 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
                                   camera_key="camera", errors_key="errors"),
             "evidence": cal.evidence,
             "n_images": cal.n_images, "n_registered": cal.n_registered,
-            "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows]}
+            "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows],
+            "focal_std_rel": float(cal.focal_std_rel)}
 
 
 def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool) -> dict:

@@ -58,6 +58,9 @@ class PipelineConfig(BaseModel):
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     calib_min_registered_ratio: float = 0.9
+    calib_max_focal_std: float = Field(
+        0.0, description="refuse a candidate whose stage-2 covariance leaves fx uncertain by "
+        "more than this fraction (0: no such gate)")
     # On the corpus tuning half (seed 0, even seeds; 2026-11-24) fx and fy left free drifted apart
     # by up to 5 % (c0004: fy +5.5 %, accepted; c0012 fy +2.2 %); with a 0.5 % prior the worst fy
     # was 1.4 % and none was accepted wrong. Real sensors' pixels are square to well under 0.5 %.

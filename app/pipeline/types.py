@@ -158,6 +158,7 @@ class Calibration:
     # ran over two windows at once.
     evidence: str = ""
     single_window: CameraModel | None = None  # the accepted window's own camera, before "+joint"
+    focal_std_rel: float = float("nan")  # stage 2's sigma(fx) / fx from its covariance
 
 
 @dataclass(frozen=True)

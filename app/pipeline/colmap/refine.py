@@ -52,7 +52,11 @@ _FLAT = 1e8
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
                    function_tolerance: float, aspect_sigma: float = 0.0,
-                   constant_frames: tuple[int, ...] = (), threads: int = -1) -> None:
+                   constant_frames: tuple[int, ...] = (), threads: int = -1,
+                   covariance: bool = False) -> float:
+    """One bundle adjustment of ``rec`` in place; with ``covariance``, returns the standard
+    deviation of fx relative to fx that the solution's covariance gives (unit pixel noise
+    scaled by the mean reprojection error; nan when it cannot be estimated), else nan."""
     import pyceres
 
     options = presets.options(pycolmap, "BundleAdjustmentOptions",
@@ -88,13 +92,29 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
                 manifolds.append(prior)
     adjuster.solve()
     rec.update_point_3d_errors()
+    focal_std_rel = float("nan")
+    if covariance and params_blocks:
+        focal_std_rel = _focal_std_rel(pycolmap, rec, adjuster, params_blocks[0])
     del manifolds, params_blocks
+    return focal_std_rel
+
+
+def _focal_std_rel(pycolmap, rec, adjuster, params: np.ndarray) -> float:
+    """sigma(fx) / fx from COLMAP's covariance of the camera block (tangent space: fx first)."""
+    cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
+    if cov is None:
+        return float("nan")
+    block = cov.get_other_params_cov(params)
+    if block is None or block.size == 0 or not np.isfinite(block[0, 0]):
+        return float("nan")
+    rms_px = float(rec.compute_mean_reprojection_error())
+    return float(np.sqrt(max(block[0, 0], 0.0)) * rms_px / params[0])
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
-                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> None:
-    """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined.
+                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> float:
+    """Stage 2 in place on ``rec``; returns sigma(fx) / fx of its solution (``_bundle_adjust``).: OPENCV model, all intrinsics but p1, p2 refined.
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
     weakest-determined group and must not absorb the large stage-1 focal error), then everything;
@@ -117,10 +137,12 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                    function_tolerance=function_tolerance, constant_frames=constant_frames,
                    threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                   function_tolerance=function_tolerance, aspect_sigma=aspect_sigma,
-                   constant_frames=constant_frames, threads=threads)
+    focal_std_rel = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
+                                   function_tolerance=function_tolerance,
+                                   aspect_sigma=aspect_sigma, constant_frames=constant_frames,
+                                   threads=threads, covariance=True)
     _filter_observations(pycolmap, rec, filter_max_error_px)
+    return focal_std_rel
 
 
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:

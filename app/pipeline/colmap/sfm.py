@@ -78,6 +78,8 @@ class WindowResult:
     # the same image from one database share its keypoints, so the depths' ratio is the ratio of
     # the windows' scales (``steps.align``).
     keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
+    # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable).
+    focal_std_rel: float = float("nan")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -339,14 +341,16 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
+    focal_std_rel = float("nan")
     if window.calibrate:
         from app.pipeline.colmap.refine import refine_all_intrinsics
-        refine_all_intrinsics(pycolmap, rec,
+        focal_std_rel = refine_all_intrinsics(pycolmap, rec,
                               function_tolerance=job.mapping.ba_function_tolerance,
                               aspect_sigma=job.mapping.aspect_prior_sigma,
                               threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
                             with_depths=window.keypoint_depths)
+    result.focal_std_rel = focal_std_rel
     if window.keep_model:
         result.model_dir = out / "model"
         result.model_dir.mkdir()

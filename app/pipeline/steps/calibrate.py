@@ -167,6 +167,9 @@ def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
     rotation = rotation_covered_deg(res.T_model_cam)
     if rotation < cfg.min_turn_rotation_deg:
         return f"only {rotation:.0f} deg of rotation"
+    if cfg.calib_max_focal_std and res.focal_std_rel > cfg.calib_max_focal_std:
+        return (f"fx uncertain by {100 * res.focal_std_rel:.2f} % "
+                f"(> {100 * cfg.calib_max_focal_std:g} %)")
     return _implausible(res.camera)
 
 
@@ -192,7 +195,7 @@ def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     if res.error:
         return window.label
     return (f"{window.label}: {len(res.image_names)}/{res.n_input} registered, "
-            f"{res.reprojection_error_px:.2f} px")
+            f"{res.reprojection_error_px:.2f} px, fx +- {100 * res.focal_std_rel:.2f} %")
 
 
 def no_turn_error(cfg: PipelineConfig) -> PipelineError:
@@ -334,4 +337,5 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                        reprojection_error_px=best.reprojection_error_px,
                        rotation_deg=rotation_covered_deg(accepted.T_model_cam),
                        windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
-                       evidence=evidence, single_window=accepted.camera)
+                       evidence=evidence, single_window=accepted.camera,
+                       focal_std_rel=best.focal_std_rel)
