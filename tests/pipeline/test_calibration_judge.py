@@ -40,6 +40,21 @@ def test_a_poor_window_is_rejected_with_its_reason(kwargs, reason):
     assert reason in judge_window(_window(TRUE, **kwargs), PipelineConfig())
 
 
+def test_a_window_whose_focal_length_its_own_covariance_leaves_loose_is_rejected():
+    loose = _window(TRUE)
+    loose.focal_std_rel = 0.01  # stage 2's covariance: fx +- 1 %
+    assert "fx uncertain by 1.00 % (> 0.5 %)" in judge_window(loose, PipelineConfig())
+    assert judge_window(loose, PipelineConfig(calib_max_focal_std=0.0)) is None  # gate off
+    singular = _window(TRUE)
+    singular.focal_std_rel = 2e80  # seen on the corpus (c0035, frames 45-70)
+    assert "not determined" in judge_window(singular, PipelineConfig())
+    tight = _window(TRUE)
+    tight.focal_std_rel = 0.002
+    assert judge_window(tight, PipelineConfig()) is None
+    # Not estimable (nan): the gate cannot judge it, the other gates do.
+    assert judge_window(_window(TRUE), PipelineConfig()) is None
+
+
 def _track(step_m: float, n: int, stop_at: int | None = None, stop_frames: int = 0) -> np.ndarray:
     """Metres travelled per frame at ``step_m`` a frame, standing still ``stop_frames`` frames."""
     steps = np.full(n, step_m)

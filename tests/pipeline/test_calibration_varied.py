@@ -59,3 +59,8 @@ def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, 
     assert cam.fy == pytest.approx(true["fy"], rel=0.01)
     assert abs(cam.cx - true["cx"]) <= 4.0 and abs(cam.cy - true["cy"]) <= 4.0
     assert cam.k1 == pytest.approx(true["k1"], rel=0.05)
+    # Stage 2's own covariance puts fx within a fraction of a per cent, and the error it made
+    # within a few of its standard deviations.
+    std = result.calibration.focal_std_rel
+    assert 0.0 < std < 0.005
+    assert abs(cam.fx / true["fx"] - 1.0) < 5.0 * std

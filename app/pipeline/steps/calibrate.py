@@ -168,6 +168,8 @@ def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
     if rotation < cfg.min_turn_rotation_deg:
         return f"only {rotation:.0f} deg of rotation"
     if cfg.calib_max_focal_std and res.focal_std_rel > cfg.calib_max_focal_std:
+        if res.focal_std_rel > 1.0:  # a singular covariance: some direction is not pinned
+            return "fx is not determined by these frames (stage 2's covariance is singular)"
         return (f"fx uncertain by {100 * res.focal_std_rel:.2f} % "
                 f"(> {100 * cfg.calib_max_focal_std:g} %)")
     return _implausible(res.camera)
