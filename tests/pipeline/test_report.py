@@ -31,6 +31,7 @@ def _result(error_px: float, registered: int = 30) -> WindowResult:
 def test_self_calibration_lists_every_candidate_it_tried():
     windows = [CalibrationWindow(np.arange(30) + 10 * k, 40) for k in range(3)]
     results = [_result(0.2, registered=10), _result(0.5), _result(0.2)]
+    results[2].focal_std_rel = 0.0012  # stage 2's covariance: fx +- 0.12 %
     trials: list[str] = []
 
     def map_window(window, start):
@@ -42,7 +43,8 @@ def test_self_calibration_lists_every_candidate_it_tried():
     assert len(trials) == 3
     assert trials[0].startswith("frames 0-29: 10/30 registered") and "refused" in trials[0]
     assert trials[1].startswith("frames 10-39: 30/30 registered, 0.50 px") and "kept" in trials[1]
-    assert trials[2] == "frames 20-49: 30/30 registered, 0.20 px: accepted, under 0.35 px"
+    assert trials[2] == ("frames 20-49: 30/30 registered, 0.20 px, fx ± 0.12 %: accepted, "
+                         "under 0.35 px")
 
 
 def test_stage_reports_round_trip_through_json():

@@ -196,8 +196,10 @@ def summary(calib: Calibration) -> str:
 def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     if res.error:
         return window.label
+    spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
+              if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
     return (f"{window.label}: {len(res.image_names)}/{res.n_input} registered, "
-            f"{res.reprojection_error_px:.2f} px, fx +- {100 * res.focal_std_rel:.2f} %")
+            f"{res.reprojection_error_px:.2f} px{spread}")
 
 
 def no_turn_error(cfg: PipelineConfig) -> PipelineError:
