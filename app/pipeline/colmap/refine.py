@@ -114,7 +114,8 @@ def _focal_std_rel(pycolmap, rec, adjuster, params: np.ndarray) -> float:
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
                           constant_frames: tuple[int, ...] = (), threads: int = -1) -> float:
-    """Stage 2 in place on ``rec``; returns sigma(fx) / fx of its solution (``_bundle_adjust``).: OPENCV model, all intrinsics but p1, p2 refined.
+    """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
+    sigma(fx) / fx of its solution from COLMAP's covariance (``_focal_std_rel``; nan if none).
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
     weakest-determined group and must not absorb the large stage-1 focal error), then everything;

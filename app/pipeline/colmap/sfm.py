@@ -344,10 +344,9 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     focal_std_rel = float("nan")
     if window.calibrate:
         from app.pipeline.colmap.refine import refine_all_intrinsics
-        focal_std_rel = refine_all_intrinsics(pycolmap, rec,
-                              function_tolerance=job.mapping.ba_function_tolerance,
-                              aspect_sigma=job.mapping.aspect_prior_sigma,
-                              threads=job.process.threads)
+        focal_std_rel = refine_all_intrinsics(
+            pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
+            aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
                             with_depths=window.keypoint_depths)
     result.focal_std_rel = focal_std_rel
