@@ -25,7 +25,6 @@ conversion; rotations between the two ENU frames differ by far less than the err
 from __future__ import annotations
 
 import json
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +35,7 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.triangulation import TriangulationError, triangulate, undistort_pixels
 from app.pipeline.run import georeference
 from app.pipeline.types import PipelineError
+from bench import replay
 from bench.corpus_report import GPS_KINDS, gps_kind
 from bench.evaluate import match_signs
 from bench.metrics import result_to_truth_enu
@@ -135,8 +135,7 @@ def collect(replay_dir: Path, corpus_dir: Path) -> list[SignPoseError]:
     """Every kept journey of ``replay_dir`` georeferenced again with its own knobs."""
     rows: list[SignPoseError] = []
     for path in sorted(Path(replay_dir).glob("*.pkl")):
-        with path.open("rb") as f:
-            kept = pickle.load(f)  # noqa: S301 - our own bench's files
+        kept = replay.load(path)
         if kept["recon"] is None:
             continue
         truth = json.loads((Path(corpus_dir) / path.stem / "truth.json").read_text())

@@ -2,10 +2,11 @@
 
 Choosing an alignment or placement knob on the corpus's tuning half costs a full run per value
 (~30 min for a half of 32 journeys, true cameras, 2026-11-26), nearly all of it ego-motion (and
-calibration), which those knobs do not touch. ``signmap bench corpus --keep-reconstructions DIR`` pickles, per journey, what
-``app.pipeline.run.reconstruct`` returned (or the error that ended it) with the journey and the
-configuration it ran with; ``--replay DIR`` then runs ``app.pipeline.run.georeference`` on it with
-this run's knobs, in seconds per journey, and records it as a full run would.
+calibration), which those knobs do not touch. ``signmap bench corpus --keep-reconstructions DIR``
+pickles, per journey, what ``app.pipeline.run.reconstruct`` returned (or the error that ended
+it) with the journey and the configuration it ran with; ``--replay DIR`` then runs
+``app.pipeline.run.georeference`` on it with this run's knobs, in seconds per journey, and records
+it as a full run would.
 
 A replay gives exactly what a full run with the same knobs gives, as long as the knobs it changes
 act only after ego-motion: ``GEOREF_KNOBS``. Any other knob differing from the kept run's is
@@ -61,12 +62,17 @@ def differing_knobs(kept: dict, config: PipelineConfig) -> list[str]:
                   and not (k in DEPTH_KNOBS and (kept.get(k) or not now[k])))
 
 
+def load(path: Path) -> dict:
+    """What ``keep`` wrote at ``path``: config (a dict), journey, recon (or None), error."""
+    with Path(path).open("rb") as f:
+        return pickle.load(f)  # noqa: S301 - our own bench's files
+
+
 def replay(path: Path, config: PipelineConfig):
     """(journey, result or None, error or None, seconds) of georeferencing the kept
     reconstruction at ``path`` with ``config``. Raises ValueError when ``config`` changes a knob
     that acts before georeferencing, FileNotFoundError when nothing was kept for the journey."""
-    with Path(path).open("rb") as f:
-        kept = pickle.load(f)  # noqa: S301 - our own bench's files
+    kept = load(path)
     differs = differing_knobs(kept["config"], config)
     if differs:
         raise ValueError(f"{', '.join(differs)} act before the align stage: a replay of "
