@@ -165,6 +165,27 @@ def run_pose_error_command(args) -> int:
     return 0
 
 
+def run_real_ego_command(args) -> int:
+    from bench.real_ego import run
+
+    print(run(args.bundle, args.calibration, args.poses))
+    return 0
+
+
+def _add_real_ego_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "real-ego", help="ego-motion over a whole real drive with its known camera, against its "
+        "true poses",
+        description="Maps every frame of a journey bundle as ego-motion maps the frames around "
+        "a sign, with the camera given, and prints per window the registration, the relative "
+        "rotation and translation direction errors and the scale drift against the true poses "
+        "(e.g. ../shared/real/kitti0009_poses.json).")
+    g.add_argument("bundle", help="the journey bundle (.zip)")
+    g.add_argument("--calibration", required=True, help="the camera, a JSON {fx, fy, cx, cy, ...}")
+    g.add_argument("--poses", help="JSON {frames: [{frame, T_world_cam}]}: the true poses")
+    g.set_defaults(func=run_real_ego_command)
+
+
 def _add_pose_error_parser(bench_sub) -> None:
     g = bench_sub.add_parser(
         "pose-error", help="split each placed sign's relative error into what the detections, "
@@ -304,6 +325,7 @@ def add_parsers(sub) -> None:
     _add_turns_parser(bench_sub)
     _add_gps_scale_parser(bench_sub)
     _add_pose_error_parser(bench_sub)
+    _add_real_ego_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "

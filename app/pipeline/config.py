@@ -55,6 +55,9 @@ class PipelineConfig(BaseModel):
         "sift", description="how self-calibration finds correspondences (see ego_front_end)")
     calib_initial_focal_factor: float = Field(
         0.8, description="first focal guess as a multiple of the image width (dash cams are wide)")
+    calib_fallback_focal_factors: list[float] = Field(
+        default_factory=list, description="when no candidate calibrates from the first focal "
+        "guess, the candidates are tried again from each of these guesses (x image width)")
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     calib_min_registered_ratio: float = 0.9
