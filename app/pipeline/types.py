@@ -124,6 +124,9 @@ class Journey:
     # White-noise sigma (m, per horizontal axis) of the GPS fixes, None when too few to tell
     # (geometry.gps_noise).
     gps_noise_m: float | None = None
+    # The horizontal accuracy the receiver states for its fixes (68 % radius, m; the median over
+    # the journey), None when the bundle gives none (``bundle.gps``).
+    gps_accuracy_m: float | None = None
     # The fixes themselves (None: one EXIF fix per frame, which lat_deg etc. already are).
     gps_fixes: GpsTrack | None = None
 

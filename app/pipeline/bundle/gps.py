@@ -22,6 +22,11 @@ Sources, by precedence: ``gps.csv``, else ``gps.gpx``, else EXIF tags of JPEG fr
   detections) with a warning in ``FrameGps.warnings``; the journey is refused when that would leave
   fewer than ``MIN_COVERED_FRACTION`` of its frames or fewer than ``MIN_COVERED_FRAMES`` (a short
   journey that the GPS covers entirely is fine);
+* ``accuracy_m`` (this project's extension; the contract ignores extra columns) may give a fix's
+  horizontal accuracy as receivers state it: the radius of 68 % confidence, metres (Android's
+  ``Location.getAccuracy``, iOS's ``horizontalAccuracy``). A receiver smooths its fixes, so the
+  error common to a whole stretch (metres for a standalone receiver) does not show in their
+  scatter; the stated accuracy is the only evidence of it (``FrameGps.accuracy_m``);
 * ``alt_m`` may be absent or empty: altitude is interpolated over the fixes that have one, held at
   the end value within the same bound outside their span (GPS altitude is too noisy to extrapolate a
   slope from), and NaN beyond.
@@ -60,6 +65,7 @@ MIN_COVERED_FRACTION = 0.5
 MIN_COVERED_FRAMES = 10
 MAX_JUMP_M = 100.0
 MAX_SPEED_MPS = 100.0
+MAX_ACCURACY_M = 1000.0  # a stated accuracy beyond this is no fix worth the name
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,7 @@ class GpsFixes:
     lon_deg: np.ndarray
     alt_m: np.ndarray
     labels: Sequence[str]
+    accuracy_m: np.ndarray | None = None  # (M,) stated 68 % horizontal radius, NaN where none
 
 
 class NumberedLabels(Sequence[str]):
@@ -107,6 +114,14 @@ class FrameGps:
         if self.fixes is None:
             return None
         return white_noise_m(self.fixes.timestamp_s, self.fixes.lat_deg, self.fixes.lon_deg)
+
+    @property
+    def accuracy_m(self) -> float | None:
+        """The median horizontal accuracy (68 % radius, m) the fixes state, None when none does."""
+        stated = None if self.fixes is None else self.fixes.accuracy_m
+        if stated is None or not np.isfinite(stated).any():
+            return None
+        return float(np.median(stated[np.isfinite(stated)]))
 
 
 def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
@@ -235,13 +250,14 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
                  max_rows: int | None = None) -> FrameGps:
     """``gps.csv`` (text, or a binary stream read as it goes) -> per-frame GPS (see the module
     docstring for the rules); more than ``max_rows`` rows is a BundleError."""
-    rows = iter_table(source, "gps.csv", ("frame", "timestamp_s", "lat", "lon"), ("alt_m",),
-                      max_rows=max_rows)
+    rows = iter_table(source, "gps.csv", ("frame", "timestamp_s", "lat", "lon"),
+                      ("alt_m", "accuracy_m"), max_rows=max_rows)
     frame_t: dict[str, tuple[float, int]] = {}
     # Compact columns: a long table costs 40 bytes per fix, not a Python object per value.
-    t_fix, lat_fix, lon_fix, alt_fix, rows_fix = (array("d"), array("d"), array("d"), array("d"),
-                                                 array("q"))
-    for row, (frame, t_text, lat_text, lon_text, alt_text) in rows:
+    t_fix, lat_fix, lon_fix, alt_fix, acc_fix, rows_fix = (
+        array("d"), array("d"), array("d"), array("d"), array("d"), array("q"))
+    bad_accuracy: list[int] = []
+    for row, (frame, t_text, lat_text, lon_text, alt_text, acc_text) in rows:
         where = f"gps.csv row {row}"
         t = parse_float(t_text, f"{where}: timestamp_s")
         if frame:
@@ -257,8 +273,11 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
         lon = parse_float(lon_text, f"{where}: lon")
         check_position(lat, lon, where)
         alt = parse_float(alt_text, f"{where}: alt_m") if alt_text else math.nan
+        accuracy = _stated_accuracy_m(acc_text)
+        if acc_text and math.isnan(accuracy):
+            bad_accuracy.append(row)
         t_fix.append(t), lat_fix.append(lat), lon_fix.append(lon), alt_fix.append(alt)
-        rows_fix.append(row)
+        acc_fix.append(accuracy), rows_fix.append(row)
     if not t_fix:
         raise BundleError("gps.csv has no GPS fixes (rows with lat and lon)")
     for frame in frame_ids:
@@ -266,9 +285,27 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
             raise BundleError(f"no GPS timestamp for frame {frame}: gps.csv needs a row with "
                               f"frame={frame} and its timestamp_s")
     fixes = GpsFixes(*(np.frombuffer(a, np.float64) for a in (t_fix, lat_fix, lon_fix, alt_fix)),
-                     NumberedLabels("row", np.frombuffer(rows_fix, np.int64)))
+                     NumberedLabels("row", np.frombuffer(rows_fix, np.int64)),
+                     np.frombuffer(acc_fix, np.float64))
     frame_timestamp_s = np.array([frame_t[f][0] for f in frame_ids])
-    return _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)
+    frame_gps = _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)
+    if bad_accuracy:
+        # The contract ignores extra columns: a column of that name meaning something else must
+        # not refuse a valid bundle, so values that are no accuracy are left out, with a warning.
+        frame_gps = replace(frame_gps, warnings=(
+            *frame_gps.warnings, f"gps.csv accuracy_m ignored on {len(bad_accuracy)} row(s) "
+            f"(first: row {bad_accuracy[0]}): not a horizontal accuracy in metres "
+            f"(0 < accuracy_m < {MAX_ACCURACY_M:g})"))
+    return frame_gps
+
+
+def _stated_accuracy_m(text: str) -> float:
+    """A stated horizontal accuracy (m), NaN when absent or no plausible accuracy."""
+    try:
+        value = float(text) if text else math.nan
+    except ValueError:
+        return math.nan
+    return value if 0.0 < value < MAX_ACCURACY_M else math.nan
 
 
 def parse_iso_time(text: str, where: str) -> datetime:

@@ -251,7 +251,7 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
                    lon_deg=gps.lon_deg, alt_m=gps.alt_m, detections=detections,
                    image_width=width, image_height=height, vehicle_id=m.vehicle_id,
                    captured_at=m.captured_at, camera_prior=prior, warnings=list(gps.warnings),
-                   gps_noise_m=gps.noise_m,
+                   gps_noise_m=gps.noise_m, gps_accuracy_m=gps.accuracy_m,
                    gps_fixes=None if gps.fixes is None else GpsTrack(
                        gps.fixes.timestamp_s, gps.fixes.lat_deg, gps.fixes.lon_deg,
                        gps.fixes.alt_m))

@@ -8,7 +8,8 @@ fit averages (``alignment_rms_m`` over ``n`` fixes) and the part of the GPS erro
 average because it is common to the whole window (a receiver's slowly drifting bias, multipath
 along a street): ``georef_floor_m`` per horizontal axis, plus ``bias_ratio`` times the
 alignment's own residual RMS, twice that vertically (GPS altitude is about twice as noisy). The
-common part cannot be seen inside one window, but it grows with the receiver's noise: on the
+common part cannot be seen inside one window, but it grows with the receiver's noise (and when the
+bundle states the receiver's accuracy, the floor is at least that: ``georef_floor_m``): on the
 corpus, journeys whose fixes scatter by 2 m also wander by metres (phones, multipath), while an
 OXTS-like receiver's 0.3 m comes with a bias of tenths. All enter as an isotropic term; the floor,
 the ratio and the gain on the averaged noise are knobs of ``PipelineConfig`` chosen on the
@@ -56,6 +57,21 @@ class GeorefTerms:
         """(3, 3) ENU covariance; altitude counts twice the horizontal error."""
         h = self.horizontal_m2(floor_m, noise_gain, bias_ratio)
         return np.diag([h, h, 4.0 * h])
+
+
+# A receiver's stated accuracy is the radius holding 68 % of its fixes; for an isotropic 2-D
+# Gaussian that radius is sqrt(-2 ln 0.32) = 1.51 sigmas per axis.
+RADIUS_68_IN_SIGMAS = float(np.sqrt(-2.0 * np.log(1.0 - 0.68)))
+
+
+def georef_floor_m(floor_m: float, stated_accuracy_m: float | None) -> float:
+    """The per-axis GPS error no window alignment averages out: the configured floor, or the
+    receiver's stated accuracy when it says more. A receiver smooths its fixes, so a standalone
+    one's error of metres, common to a whole stretch, hides from their scatter and from every
+    alignment residual (a real 1 Hz drive: residuals 0.08-0.16 m); only its own statement shows it."""
+    if stated_accuracy_m is None:
+        return floor_m
+    return max(floor_m, stated_accuracy_m / RADIUS_68_IN_SIGMAS)
 
 
 def horizontal_radius_m(cov_enu: np.ndarray, p: float = 0.95) -> float:

@@ -39,6 +39,9 @@ STAGE = "calibrate"
 # last two (ending at the vertex, starting at it) are reached only when no earlier window was
 # sharp or confirmed by another: a 5 Hz journey's one right window was its fourth (2026-11-25).
 CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17, -1.0, 0.0)
+# Candidates (the first ones: strongest turn, centred) tried again from each fallback focal guess
+# (``calib_fallback_focal_factors``).
+FALLBACK_CANDIDATES = 2
 
 
 @dataclass(frozen=True)
@@ -286,12 +289,15 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     good: list[tuple[CalibrationWindow, WindowResult]] = []
     chosen: list[tuple[CalibrationWindow, WindowResult]] = []
     evidence = ""
-    # Each further start runs only when no candidate calibrated from the ones before: what the
-    # first start accepts is never changed by the others.
-    rounds = [(start, window) for start in starts for window in windows]
+    # Each further start runs only when no candidate calibrated from the ones before, so what the
+    # first start accepts never changes; and only on the strongest candidates, as a window that
+    # failed for want of texture or parallax fails again from any start (a gentle journey's seven
+    # windows took 42 s each).
+    rounds = [(first, w) for w in windows] + [(start, w) for start in starts[1:]
+                                               for w in windows[:FALLBACK_CANDIDATES]]
     seeded: CameraModel | None = None
     for k, (start, window) in enumerate(rounds):
-        if k and k % len(windows) == 0:
+        if k and start is not rounds[k - 1][0]:
             log.info("calibration: no candidate held from the previous focal guess; trying again "
                      "from fx %.0f px", start.fx)
         label = window.label if start is first else f"{window.label} from fx {start.fx:.0f}"

@@ -17,7 +17,8 @@ from app.pipeline.geometry.facing import facing_deg
 from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError,
                                                  largest_std_m, triangulate_inliers,
                                                  undistort_pixels)
-from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.geometry.uncertainty import (GeorefTerms, georef_floor_m,
+                                               horizontal_radius_m)
 from app.pipeline.steps import align
 from app.pipeline.types import (CameraModel, Journey, RejectedSign, Sign, SignObservation,
                                 SignUncertainty, StageReport)
@@ -70,7 +71,8 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
             rejected.append(RejectedSign(track_id, cls, f"uncertainty {largest_std_m(cov_tri):.2f}"
                                                         f" m > {config.max_sign_std_m} m"))
             continue
-        cov_enu = cov_tri + georef.cov_m2(config.sign_georef_floor_m,
+        cov_enu = cov_tri + georef.cov_m2(georef_floor_m(config.sign_georef_floor_m,
+                                                         journey.gps_accuracy_m),
                                           config.sign_georef_noise_gain,
                                           config.sign_georef_bias_ratio)
         T = np.concatenate([p.T_world_cam for p in placed])
