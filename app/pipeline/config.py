@@ -55,6 +55,9 @@ class PipelineConfig(BaseModel):
         "sift", description="how self-calibration finds correspondences (see ego_front_end)")
     calib_initial_focal_factor: float = Field(
         0.8, description="first focal guess as a multiple of the image width (dash cams are wide)")
+    calib_stage1_k2: bool = Field(
+        False, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
+        "k1 alone")
     calib_fallback_focal_factors: list[float] = Field(
         default_factory=list, description="when no candidate calibrates from the first focal "
         "guess, the candidates are tried again from each of these guesses (x image width)")

@@ -300,9 +300,11 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         for cam in db.read_all_cameras():
             if window.calibrate:
                 c = window.camera
-                new = pycolmap.Camera(model="SIMPLE_RADIAL", width=c.width, height=c.height,
-                                      params=[c.fx, c.cx + COLMAP_PIXEL_OFFSET,
-                                              c.cy + COLMAP_PIXEL_OFFSET, c.k1])
+                params = [c.fx, c.cx + COLMAP_PIXEL_OFFSET, c.cy + COLMAP_PIXEL_OFFSET, c.k1]
+                new = pycolmap.Camera(
+                    model="RADIAL" if job.mapping.stage1_k2 else "SIMPLE_RADIAL",
+                    width=c.width, height=c.height,
+                    params=params + ([c.k2] if job.mapping.stage1_k2 else []))
             else:
                 new = _colmap_camera(pycolmap, window.camera)
             new.camera_id = cam.camera_id

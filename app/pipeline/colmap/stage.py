@@ -113,7 +113,8 @@ class StageSfm:
 def _mapping(cfg: PipelineConfig) -> MappingOptions:
     return MappingOptions(ba_max_refinements=cfg.ba_max_refinements,
                           ba_function_tolerance=cfg.ba_function_tolerance,
-                          aspect_prior_sigma=cfg.calib_aspect_prior_sigma)
+                          aspect_prior_sigma=cfg.calib_aspect_prior_sigma,
+                          stage1_k2=cfg.calib_stage1_k2)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:
