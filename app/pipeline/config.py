@@ -58,9 +58,6 @@ class PipelineConfig(BaseModel):
     calib_stage1_k2: bool = Field(
         False, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")
-    calib_fallback_focal_factors: list[float] = Field(
-        default_factory=list, description="when no candidate calibrates from the first focal "
-        "guess, the candidates are tried again from each of these guesses (x image width)")
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     calib_min_registered_ratio: float = 0.9

@@ -208,28 +208,3 @@ def test_a_lone_unconfirmed_window_is_refused_not_accepted():
     assert tried == [0, 1]
     assert err.stage == "calibrate" and "no other window agreed" in str(err)
     assert "frames registered" in str(err)
-
-
-def test_a_search_that_fails_from_the_first_focal_guess_runs_again_from_the_fallbacks():
-    # A 99 deg lens (fx 0.37 x width) registered 2-16 of 22 frames from the 0.8 x width guess on
-    # every window of a corpus journey (c0032, 2026-11-26).
-    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
-
-    windows = [CalibrationWindow(np.arange(30) + 40 * k, 40) for k in range(2)]
-    starts: list[float] = []
-
-    def map_window(window, start):
-        starts.append(start.fx)
-        return _window(TRUE, registered=30 if start.fx < 700 else 8)
-
-    cfg = PipelineConfig(calib_fallback_focal_factors=[0.5, 1.2])
-    trials: list[str] = []
-    cal = self_calibrate(windows, cfg, map_window, width=1242, height=375, trials=trials)
-    assert starts == [0.8 * 1242, 0.8 * 1242, 0.5 * 1242]  # the 1.2 x guess is never needed
-    assert cal.camera == TRUE and "from fx 621" in trials[-1] and "accepted" in trials[-1]
-
-    # A search that holds from the first guess never tries the others.
-    starts.clear()
-    self_calibrate(windows, cfg, lambda w, s: (starts.append(s.fx), _window(TRUE))[1],
-                   width=1242, height=375)
-    assert starts == [0.8 * 1242]

@@ -39,9 +39,6 @@ STAGE = "calibrate"
 # last two (ending at the vertex, starting at it) are reached only when no earlier window was
 # sharp or confirmed by another: a 5 Hz journey's one right window was its fourth (2026-11-25).
 CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17, -1.0, 0.0)
-# Candidates (the first ones: strongest turn, centred) tried again from each fallback focal guess
-# (``calib_fallback_focal_factors``).
-FALLBACK_CANDIDATES = 2
 
 
 @dataclass(frozen=True)
@@ -196,13 +193,12 @@ def summary(calib: Calibration) -> str:
             f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
 
 
-def _trial(window: CalibrationWindow, res: WindowResult, label: str | None = None) -> str:
-    label = label or window.label
+def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     if res.error:
-        return label
+        return window.label
     spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
-    return (f"{label}: {len(res.image_names)}/{res.n_input} registered, "
+    return (f"{window.label}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px{spread}")
 
 
@@ -282,39 +278,26 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     if not windows:
         raise no_turn_error(cfg)
     trials = [] if trials is None else trials
-    first = initial_camera(width, height, cfg, hint)
-    starts = [first] + [_stage1_start(width, height, factor * width, 0.0)
-                        for factor in cfg.calib_fallback_focal_factors]
+    start = initial_camera(width, height, cfg, hint)
     reasons: list[str] = []
     good: list[tuple[CalibrationWindow, WindowResult]] = []
     chosen: list[tuple[CalibrationWindow, WindowResult]] = []
     evidence = ""
-    # Each further start runs only when no candidate calibrated from the ones before, so what the
-    # first start accepts never changes; and only on the strongest candidates, as a window that
-    # failed for want of texture or parallax fails again from any start (a gentle journey's seven
-    # windows took 42 s each).
-    rounds = [(first, w) for w in windows] + [(start, w) for start in starts[1:]
-                                               for w in windows[:FALLBACK_CANDIDATES]]
-    seeded: CameraModel | None = None
-    for k, (start, window) in enumerate(rounds):
-        if k and start is not rounds[k - 1][0]:
-            log.info("calibration: no candidate held from the previous focal guess; trying again "
-                     "from fx %.0f px", start.fx)
-        label = window.label if start is first else f"{window.label} from fx {start.fx:.0f}"
+    for k, window in enumerate(windows):
         if on_candidate is not None:
-            on_candidate(k, len(rounds), window)
-        res = map_window(window, seeded or start)
+            on_candidate(k, len(windows), window)
+        res = map_window(window, start)
         why = judge_window(res, cfg)
-        log.info("calibration candidate %s: %s", label,
+        log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
-            reasons.append(f"{label}: {why}")
-            trials.append(f"{_trial(window, res, label)}: refused, {why}")
+            reasons.append(f"{window.label}: {why}")
+            trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
         if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
                 and not cfg.calib_require_agreement):
             chosen, evidence = [(window, res)], "reprojection"
-            trials.append(f"{_trial(window, res, label)}: accepted, under "
+            trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
             break
         agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
@@ -325,20 +308,20 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # error that ends the search on its own. Windows sharing most of their road fell
             # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
             chosen, evidence = agreeing + [(window, res)], "agreement"
-            log.info("calibration: %s agrees with %s", label, agreeing[0][0].label)
-            trials.append(f"{_trial(window, res, label)}: accepted, agrees with "
+            log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
+            trials.append(f"{_trial(window, res)}: accepted, agrees with "
                           f"{agreeing[0][0].label}")
             break
         good.append((window, res))
         if cfg.calib_require_agreement:
             # A start near the camera lets a later window register where the wide guess did
             # not; a wrong camera is no minimum of other frames, so they do not agree with it.
-            seeded = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
-        trials.append(f"{_trial(window, res, label)}: "
+            start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
+        trials.append(f"{_trial(window, res)}: "
                       + ("" if cfg.calib_require_agreement else
                          f"above {cfg.calib_accept_reprojection_px:g} px, ")
                       + "kept until another window agrees")
-        reasons.append(f"{label}: {res.reprojection_error_px:.2f} px and no other window "
+        reasons.append(f"{window.label}: {res.reprojection_error_px:.2f} px and no other window "
                        f"agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
     if not chosen:
         # A lone candidate above the sharp-image error is not accepted: a wrong minimum
