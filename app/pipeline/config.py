@@ -131,6 +131,9 @@ class PipelineConfig(BaseModel):
     ego_max_spacing_m: float = Field(
         0.0, description="if > 0, map frames closer than this (metres, at the journey's moving "
         "speed): the step shrinks from ego_frame_step down to 1 when frames are farther apart")
+    ego_map_leftovers_min_images: int = Field(
+        0, description="when a window's model leaves at least this many consecutive mapped "
+        "frames unregistered, map them as a model of their own (0: never)")
     ego_window_overlap_frames: int = Field(
         16, description="frames consecutive windows of a stretch share (0: no chaining)")
     ego_bridge_gap_frames: int = Field(

@@ -220,7 +220,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
             ego_windows, names, camera, step=the_plan.ego_step, extra=the_plan.off_grid,
             position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap,
             more_init_pairs=config.ego_more_init_pairs,
-            keypoint_depths=bool(config.alignment_scale_ratio_sigma)),
+            keypoint_depths=bool(config.alignment_scale_ratio_sigma),
+            map_leftovers_min_images=config.ego_map_leftovers_min_images),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
         poses = ego_motion.window_poses(ego_windows, results, names)

@@ -54,6 +54,9 @@ class WindowRequest:
     keep_model: bool = False
     # Fill ``WindowResult.keypoint_depths`` (for the joint alignment's scale ratios).
     keypoint_depths: bool = False
+    # When the model leaves a run of at least this many images unregistered, map them as a
+    # model of their own (``WindowResult.others``); 0: never.
+    map_leftovers_min_images: int = 0
 
 
 @dataclass
@@ -80,6 +83,9 @@ class WindowResult:
     keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
     # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable).
     focal_std_rel: float = float("nan")
+    # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
+    # each in its own model frame and scale.
+    others: list["WindowResult"] = field(default_factory=list)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -188,9 +194,31 @@ def _prepare_in_child(job: SfmJob) -> dict[str, float]:
 def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     pycolmap = _pycolmap(job)
     t0 = time.perf_counter()
-    result = _map_window(pycolmap, job, job.workdir / "features.db", index, job.windows[index])
+    window = job.windows[index]
+    result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
+    run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
+    if run:
+        # COLMAP's one model stopped short of the window's end (a real drive: frames 86-110 of a
+        # window left out, mapped whole by the next window): map what it left as a model of its own.
+        rest = _map_window(pycolmap, job, job.workdir / "features.db", index,
+                           replace(window, image_names=run, init_pair=None, more_init_pairs=()),
+                           suffix="rest")
+        if len(rest.image_names) >= 3:
+            result.others = [rest]
     result.mapping_s = round(time.perf_counter() - t0, 3)
     return result
+
+
+def leftover_run(names: list[str], registered: list[str], min_images: int) -> list[str]:
+    """The longest run of consecutive ``names`` that are not ``registered``, if it has at least
+    ``min_images`` (0: never)."""
+    if min_images <= 0:
+        return []
+    done, best, run = set(registered), [], []
+    for name in names:
+        run = [] if name in done else run + [name]
+        best = run if len(run) > len(best) else best
+    return best if len(best) >= min_images else []
 
 
 def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
@@ -288,8 +316,8 @@ def camera_model(cam) -> CameraModel:
 
 
 def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
-                window: WindowRequest) -> WindowResult:
-    out = job.workdir / f"window_{index:03d}"
+                window: WindowRequest, suffix: str = "") -> WindowResult:
+    out = job.workdir / f"window_{index:03d}{suffix}"
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     # The database holds one camera; give this window its own copy with the known intrinsics

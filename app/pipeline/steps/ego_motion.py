@@ -68,7 +68,8 @@ def _ceil_div(a: int, b: int) -> int:
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
              step: int = 1, extra: np.ndarray = np.zeros(0, int), position_priors: bool = False,
              init_gap_frames: int | None = None, more_init_pairs: int = 0,
-             keypoint_depths: bool = False) -> list[WindowRequest]:
+             keypoint_depths: bool = False,
+             map_leftovers_min_images: int = 0) -> list[WindowRequest]:
     """One mapping request per window: its frames on the ``step`` grid (at 10 frames/s
     consecutive frames add little geometry but cost tracking, matching and registration time),
     and those of the ``extra`` frames that fall inside it (``off_grid_frames``).
@@ -92,7 +93,8 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
                                  use_position_priors=position_priors,
                                  init_pair=pairs[0] if pairs else None,
                                  more_init_pairs=tuple(pairs[1:]),
-                                 keypoint_depths=keypoint_depths))
+                                 keypoint_depths=keypoint_depths,
+                                 map_leftovers_min_images=map_leftovers_min_images))
     return out
 
 
@@ -153,10 +155,18 @@ class WindowPoses:
 
 def window_poses(windows: list[tuple[int, int]], results: list[WindowResult],
                  frame_names: list[str]) -> list[WindowPoses]:
+    """The reconstructed windows, each model a window's mapping left over (``others``) as one
+    more, spanning its own frames."""
     index = {name: i for i, name in enumerate(frame_names)}
-    return [WindowPoses(w, np.array([index[n] for n in r.image_names], dtype=int), r.T_model_cam,
-                        r.keypoint_depths)
-            for w, r in zip(windows, results) if len(r.image_names) >= 3]
+    out = []
+    for w, r in zip(windows, results):
+        for k, model in enumerate([r, *r.others]):
+            if len(model.image_names) < 3:
+                continue
+            idx = np.array([index[n] for n in model.image_names], dtype=int)
+            span = w if k == 0 else (int(idx.min()), int(idx.max()) + 1)
+            out.append(WindowPoses(span, idx, model.T_model_cam, model.keypoint_depths))
+    return out
 
 
 def report(windows: list[tuple[int, int]], results: list[WindowResult],
@@ -164,6 +174,8 @@ def report(windows: list[tuple[int, int]], results: list[WindowResult],
     """The ego_motion stage's report: each window's registration, or why it failed."""
     details = tuple(f"frames {a}-{b - 1}: " + (r.error or f"{len(r.image_names)}/{r.n_input} "
                                                 f"registered, {r.reprojection_error_px:.2f} px")
+                    + "".join(f"; {len(o.image_names)} more in a model of their own"
+                              for o in r.others)
                     for (a, b), r in zip(windows, results))
     return StageReport("ego_motion", f"{len(poses)} of {len(windows)} windows reconstructed",
                        details)
