@@ -2,8 +2,9 @@
 
 Straight driving is a critical motion for self-calibration (depth and distortion conflate), so only
 frames around the turns that RDP found on the GPS track are used. Stage 1 maps a window with one
-focal length, the principal point at the image centre and k1 (COLMAP SIMPLE_RADIAL); stage 2 refines
-fx, fy, cx, cy, k1, k2 together (``colmap.refine``).
+focal length, the principal point at the image centre and k1 (COLMAP SIMPLE_RADIAL, the paper's),
+or k1 and k2 (RADIAL, ``calib_stage1_k2``, the default: wide lenses' corners need k2 before stage
+2 can find them); stage 2 refines fx, fy, cx, cy, k1, k2 together (``colmap.refine``).
 
 Incremental mapping with free intrinsics is fragile on car footage: when COLMAP happens to start from
 a forward-moving pair, the two-view bundle adjustment drifts the focal length and k1 away and nothing
