@@ -83,9 +83,8 @@ def evaluate(bundle: Path, camera_json: Path, poses_json: Path | None,
     from bench.corpus import pipeline_config
 
     journey = read_bundle(bundle, workdir / "bundle")
-    p = _calibration(str(camera_json))
-    camera = CameraModel(journey.image_width, journey.image_height, p["fx"], p["fy"], p["cx"],
-                         p["cy"], p.get("k1", 0.0), p.get("k2", 0.0))
+    camera = CameraModel.from_params(journey.image_width, journey.image_height,
+                                     _calibration(str(camera_json)))
     config = pipeline_config({"reuse_known_calibration": True})
     recon = reconstruct(probe_journey(journey), config, workdir / "run", known_camera=camera)
     true = None

@@ -61,24 +61,18 @@ def test_the_floor_is_the_stated_accuracy_in_sigmas_when_it_says_more():
 def _with_biased_gps(bundle, out, bias_north_m: float, accuracy_m: float | None):
     """``bundle`` with every fix moved ``bias_north_m`` north (a receiver's smooth bias) and, when
     given, ``accuracy_m`` stated for each fix."""
-    with zipfile.ZipFile(bundle) as src, zipfile.ZipFile(out, "w") as dst:
-        for item in src.infolist():
-            data = src.read(item)
-            if item.filename == "gps.csv":
-                rows = list(csv.reader(io.StringIO(data.decode())))
-                header = rows[0] + ([] if accuracy_m is None else ["accuracy_m"])
-                lat = header.index("lat")
-                body = []
-                for r in rows[1:]:
-                    if r[lat]:
-                        r[lat] = f"{float(r[lat]) + bias_north_m / 111_200.0:.9f}"
-                    body.append(r + ([] if accuracy_m is None else
-                                     [f"{accuracy_m:g}" if r[lat] else ""]))
-                text = io.StringIO()
-                csv.writer(text, lineterminator="\n").writerows([header, *body])
-                data = text.getvalue().encode()
-            dst.writestr(item, data)
-    return out
+    with zipfile.ZipFile(bundle) as src:
+        files = {name: src.read(name) for name in src.namelist()}
+    rows = list(csv.reader(io.StringIO(files["gps.csv"].decode())))
+    header = rows[0] + ([] if accuracy_m is None else ["accuracy_m"])
+    lat = header.index("lat")
+    body = []
+    for r in rows[1:]:
+        if r[lat]:
+            r[lat] = f"{float(r[lat]) + bias_north_m / 111_200.0:.9f}"
+        body.append(r + ([] if accuracy_m is None else [f"{accuracy_m:g}" if r[lat] else ""]))
+    files["gps.csv"] = bf.csv_bytes(header, body)
+    return bf.write_zip(out, files)
 
 
 def test_signs_of_a_receiver_that_states_its_accuracy_hold_their_smooth_bias(

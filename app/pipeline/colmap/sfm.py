@@ -196,8 +196,9 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     t0 = time.perf_counter()
     window = job.windows[index]
     result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
+    # A window that built no model already tried COLMAP's own initial pair last (``_map_window``).
     run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
-    if run:
+    if run and result.image_names:
         # COLMAP's one model stopped short of the window's end (a real drive: frames 86-110 of a
         # window left out, mapped whole by the next window): map what it left as a model of its own.
         rest = _map_window(pycolmap, job, job.workdir / "features.db", index,
