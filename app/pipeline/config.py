@@ -61,6 +61,11 @@ class PipelineConfig(BaseModel):
     # run once afterwards: 16 -> 17 of 22, and the one calibration accepted > 3 % off (c0043, fx
     # -3.8 %) now -0.6 %; calibrate median 17.8 -> 26.4 s (bar 30). turn-70's stage 1 lands at
     # fx -6 % instead of +8 % and k1 6 % instead of 31 % off, in the same time.
+    # The corpus spans 45-110 deg of horizontal field of view: focal lengths of 1.21 down to 0.35
+    # of the width, around the first guess of 0.8.
+    calib_retry_focal_factors: tuple[float, ...] = Field(
+        (), description="when a candidate window registers too few frames from the first focal "
+        "guess, map it again from these multiples of the image width")
     calib_stage1_k2: bool = Field(
         True, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")
@@ -75,6 +80,10 @@ class PipelineConfig(BaseModel):
     calib_max_focal_std: float = Field(
         0.005, description="refuse a candidate whose stage-2 covariance leaves fx uncertain by "
         "more than this fraction (0: no such gate)")
+    calib_agreement_max_focal_std: float = Field(
+        0.0, description="a candidate whose fx is uncertain by more than calib_max_focal_std "
+        "but not more than this is kept until a window of other frames agrees with it (0: such a "
+        "candidate is refused)")
     # On the corpus tuning half (seed 0, even seeds; 2026-11-24) fx and fy left free drifted apart
     # by up to 5 % (c0004: fy +5.5 %, accepted; c0012 fy +2.2 %); with a 0.5 % prior the worst fy
     # was 1.4 % and none was accepted wrong. Real sensors' pixels are square to well under 0.5 %.

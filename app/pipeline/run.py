@@ -178,8 +178,12 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                         config=config, xyz_gps=xyz_gps, verbose=verbose)
 
     def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
-        request = WindowRequest(image_names=[names[i] for i in window.frame_idx], camera=start,
-                                calibrate=True, keep_model=config.calib_joint)
+        n_images = len(window.frame_idx)
+        request = WindowRequest(
+            image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
+            keep_model=config.calib_joint,
+            retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
+            retry_below=int(np.ceil(config.calib_min_registered_ratio * n_images)))
         return calibrate_stage(window, "calibrate").run([request], None)[0]
 
     def refine_jointly(window: CalibrationWindow, accepted: WindowResult,

@@ -157,7 +157,7 @@ def test_images_spread_by_heading_change_crowd_into_a_sharp_turn():
     assert largest_step_deg(0.5) <= 0.6 * largest_step_deg(0.0)
 
 
-def _search(results: list[WindowResult], shift: int = 20):
+def _search(results: list[WindowResult], shift: int = 20, config: PipelineConfig | None = None):
     """Run the candidate search over made-up windows of 30 frames, each ``shift`` frames after the
     last; returns (calibration or error, windows tried)."""
     from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
@@ -172,7 +172,8 @@ def _search(results: list[WindowResult], shift: int = 20):
         return results[k]
 
     try:
-        out = self_calibrate(windows, PipelineConfig(), map_window, width=1242, height=375)
+        out = self_calibrate(windows, config or PipelineConfig(), map_window, width=1242,
+                             height=375)
     except PipelineError as exc:
         out = exc
     return out, tried
@@ -208,3 +209,27 @@ def test_a_lone_unconfirmed_window_is_refused_not_accepted():
     assert tried == [0, 1]
     assert err.stage == "calibrate" and "no other window agreed" in str(err)
     assert "frames registered" in str(err)
+
+
+def _loose(camera: CameraModel, focal_std_rel: float, error_px: float = 0.2) -> WindowResult:
+    res = _window(camera, error_px=error_px)
+    res.focal_std_rel = focal_std_rel
+    return res
+
+
+def test_windows_with_a_loose_focal_length_need_one_another_to_agree():
+    # 5 Hz and wide-lens windows left fx uncertain by 0.5-1 % each, their fx within 1 % of one
+    # another (corpus c0032, c0034; 2026-11-26).
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    knob = PipelineConfig(calib_agreement_max_focal_std=0.01)
+    cal, tried = _search([_loose(TRUE, 0.008), _loose(WRONG, 0.007), _loose(nearly, 0.009)],
+                         config=knob)
+    assert tried == [0, 1, 2] and cal.evidence == "agreement" and cal.camera in (TRUE, nearly)
+    # Alone, however sharp, a loose window is not accepted; nor looser than the knob allows.
+    err, _ = _search([_loose(TRUE, 0.008, error_px=0.1), _loose(WRONG, 0.007)], config=knob)
+    assert "fx uncertain by 0.80 % and no other window agreed" in str(err)
+    err, _ = _search([_loose(TRUE, 0.02), _loose(nearly, 0.009)], config=knob)
+    assert "fx uncertain by 2.00 % (> 0.5 %)" in str(err)
+    # Without the knob, each is refused as before.
+    err, tried = _search([_loose(TRUE, 0.008), _loose(nearly, 0.009)])
+    assert tried == [0, 1] and str(err).count("(> 0.5 %)") == 2

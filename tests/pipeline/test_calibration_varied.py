@@ -64,3 +64,20 @@ def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, 
     std = result.calibration.focal_std_rel
     assert 0.0 < std < 0.005
     assert abs(cam.fx / true["fx"] - 1.0) < 5.0 * std
+
+
+def test_a_window_that_registers_little_from_the_first_focal_guess_is_mapped_again(
+        tmp_path_factory, tmp_path):
+    # A 99 deg lens (focal 0.37 of the width) from the usual guess of 0.8: the initial pair's
+    # bundle adjustment ran off (k1 = 263) and 2 of 22 frames registered on every window
+    # (corpus c0032, 2026-11-26). Here a guess of 3x the width plays the far-off one.
+    bundle, truth = synthetic_journey(tmp_path_factory, "20hz-6mps-stop-small",
+                                      **VARIED["20hz-6mps-stop-small"])
+    journey = dataclasses.replace(read_bundle(bundle, tmp_path / "bundle"), detections=[])
+    config = PipelineConfig(calib_initial_focal_factor=3.0, calib_retry_focal_factors=(0.8,))
+    result = process_journey(journey, config, tmp_path / "work")
+    cam, true = result.calibration.camera, truth["camera"]
+    assert cam.fx == pytest.approx(true["fx"], rel=0.01)
+    assert cam.k1 == pytest.approx(true["k1"], rel=0.05)
+    trials = next(r for r in result.report if r.stage == "calibrate").details
+    assert any(" from fx 512: " in line and "accepted" in line for line in trials), trials

@@ -57,6 +57,11 @@ class WindowRequest:
     # When the model leaves a run of at least this many images unregistered, map them as a
     # model of their own (``WindowResult.others``); 0: never.
     map_leftovers_min_images: int = 0
+    # With ``calibrate``: when the model from ``camera`` registers fewer than ``retry_below``
+    # images, map again from each of these focal lengths (px) in turn until one does; the model
+    # that registered most is kept.
+    retry_focals_px: tuple[float, ...] = ()
+    retry_below: int = 0
 
 
 @dataclass
@@ -86,6 +91,8 @@ class WindowResult:
     # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
     # each in its own model frame and scale.
     others: list["WindowResult"] = field(default_factory=list)
+    # The focal length (px) stage 1 started from (``WindowRequest.retry_focals_px``).
+    start_focal_px: float = float("nan")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -196,6 +203,8 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     t0 = time.perf_counter()
     window = job.windows[index]
     result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
+    if window.calibrate:
+        result = _retry_from_other_focals(pycolmap, job, index, window, result)
     # A window that built no model already tried COLMAP's own initial pair last (``_map_window``).
     run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
     if run and result.image_names:
@@ -207,6 +216,30 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
         if len(rest.image_names) >= 3:
             result.others = [rest]
     result.mapping_s = round(time.perf_counter() - t0, 3)
+    return result
+
+
+def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRequest,
+                             result: WindowResult) -> WindowResult:
+    """``result``, or the mapping from another starting focal length that registered more.
+
+    Free-intrinsics mapping from a focal length far from the lens's (0.8 of the width for a
+    99 deg lens whose focal is 0.37 of it) let the two-view bundle adjustment of the initial
+    pair run off (k1 = 263) and nothing else registered; from 0.5 of the width the same window
+    registered 22 of 22 (corpus c0032, 2026-11-26)."""
+    result.start_focal_px = window.camera.fx
+    for focal_px in window.retry_focals_px:
+        if len(result.image_names) >= window.retry_below:
+            break
+        start = window.camera.replace(fx=focal_px, fy=focal_px)
+        again = _map_window(pycolmap, job, job.workdir / "features.db", index,
+                            replace(window, camera=start), suffix=f"_f{focal_px:.0f}")
+        again.start_focal_px = focal_px
+        log.info("window %d: %d/%d images registered from fx %.0f, %d from fx %.0f", index,
+                 len(again.image_names), again.n_input, focal_px, len(result.image_names),
+                 result.start_focal_px)
+        if len(again.image_names) > len(result.image_names):
+            result = again
     return result
 
 

@@ -161,19 +161,27 @@ def _poor_fit(res: WindowResult, cfg: PipelineConfig) -> str | None:
     return None
 
 
-def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
-    """Why this candidate is unusable, or None."""
+def judge_window(res: WindowResult, cfg: PipelineConfig, *,
+                 agreement_may_follow: bool = False) -> str | None:
+    """Why this candidate is unusable, or None. ``agreement_may_follow``: a window whose fx is
+    uncertain by more than ``calib_max_focal_std`` but less than
+    ``calib_agreement_max_focal_std`` is not refused here (it needs another window's agreement)."""
     if why := _poor_fit(res, cfg):
         return why
     rotation = rotation_covered_deg(res.T_model_cam)
     if rotation < cfg.min_turn_rotation_deg:
         return f"only {rotation:.0f} deg of rotation"
-    if cfg.calib_max_focal_std and res.focal_std_rel > cfg.calib_max_focal_std:
-        if res.focal_std_rel > 1.0:  # a singular covariance: some direction is not pinned
-            return "fx is not determined by these frames (stage 2's covariance is singular)"
+    if res.focal_std_rel > 1.0:  # a singular covariance: some direction is not pinned
+        return "fx is not determined by these frames (stage 2's covariance is singular)"
+    if _focal_uncertain(res, cfg) and not (
+            agreement_may_follow and res.focal_std_rel <= cfg.calib_agreement_max_focal_std):
         return (f"fx uncertain by {100 * res.focal_std_rel:.2f} % "
                 f"(> {100 * cfg.calib_max_focal_std:g} %)")
     return _implausible(res.camera)
+
+
+def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
+    return bool(cfg.calib_max_focal_std) and res.focal_std_rel > cfg.calib_max_focal_std
 
 
 def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
@@ -194,12 +202,15 @@ def summary(calib: Calibration) -> str:
             f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
 
 
-def _trial(window: CalibrationWindow, res: WindowResult) -> str:
+def _trial(window: CalibrationWindow, res: WindowResult, first_fx: float) -> str:
     if res.error:
         return window.label
     spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
-    return (f"{window.label}: {len(res.image_names)}/{res.n_input} registered, "
+    # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
+    start = (f" from fx {res.start_focal_px:.0f}" if np.isfinite(res.start_focal_px)
+             and abs(res.start_focal_px - first_fx) > 0.5 else "")
+    return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px{spread}")
 
 
@@ -287,18 +298,18 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     for k, window in enumerate(windows):
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
-        res = map_window(window, start)
-        why = judge_window(res, cfg)
+        res, start_fx = map_window(window, start), start.fx
+        why = judge_window(res, cfg, agreement_may_follow=True)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
             reasons.append(f"{window.label}: {why}")
-            trials.append(f"{_trial(window, res)}: refused, {why}")
+            trials.append(f"{_trial(window, res, start_fx)}: refused, {why}")
             continue
         if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
-                and not cfg.calib_require_agreement):
+                and not cfg.calib_require_agreement and not _focal_uncertain(res, cfg)):
             chosen, evidence = [(window, res)], "reprojection"
-            trials.append(f"{_trial(window, res)}: accepted, under "
+            trials.append(f"{_trial(window, res, start_fx)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
             break
         agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
@@ -310,7 +321,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
             chosen, evidence = agreeing + [(window, res)], "agreement"
             log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
-            trials.append(f"{_trial(window, res)}: accepted, agrees with "
+            trials.append(f"{_trial(window, res, start_fx)}: accepted, agrees with "
                           f"{agreeing[0][0].label}")
             break
         good.append((window, res))
@@ -318,12 +329,13 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # A start near the camera lets a later window register where the wide guess did
             # not; a wrong camera is no minimum of other frames, so they do not agree with it.
             start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
-        trials.append(f"{_trial(window, res)}: "
-                      + ("" if cfg.calib_require_agreement else
-                         f"above {cfg.calib_accept_reprojection_px:g} px, ")
-                      + "kept until another window agrees")
-        reasons.append(f"{window.label}: {res.reprojection_error_px:.2f} px and no other window "
-                       f"agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
+        weak = (f"fx uncertain by {100 * res.focal_std_rel:.2f} %" if _focal_uncertain(res, cfg)
+                else "" if cfg.calib_require_agreement
+                else f"above {cfg.calib_accept_reprojection_px:g} px")
+        trials.append(f"{_trial(window, res, start_fx)}: "
+                      + (f"{weak}, " if weak else "") + "kept until another window agrees")
+        reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
+                       f"other window agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
     if not chosen:
         # A lone candidate above the sharp-image error is not accepted: a wrong minimum
         # (fx 23 % low, k1 +0.32 at 0.75 px) was the best of a 5 Hz journey's candidates
