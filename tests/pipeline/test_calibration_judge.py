@@ -221,7 +221,7 @@ def test_windows_with_a_loose_focal_length_need_one_another_to_agree():
     # 5 Hz and wide-lens windows left fx uncertain by 0.5-1 % each, their fx within 1 % of one
     # another (corpus c0032, c0034; 2026-11-26).
     nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
-    knob = PipelineConfig()  # calib_agreement_max_focal_std = 0.01
+    knob = PipelineConfig(calib_agreement_max_focal_std=0.01)
     cal, tried = _search([_loose(TRUE, 0.008), _loose(WRONG, 0.007), _loose(nearly, 0.009)],
                          config=knob)
     assert tried == [0, 1, 2] and cal.evidence == "agreement" and cal.camera in (TRUE, nearly)
@@ -230,7 +230,6 @@ def test_windows_with_a_loose_focal_length_need_one_another_to_agree():
     assert "fx uncertain by 0.80 % and no other window agreed" in str(err)
     err, _ = _search([_loose(TRUE, 0.02), _loose(nearly, 0.009)], config=knob)
     assert "fx uncertain by 2.00 % (> 0.5 %)" in str(err)
-    # Without the knob, each is refused as before.
-    err, tried = _search([_loose(TRUE, 0.008), _loose(nearly, 0.009)],
-                         config=PipelineConfig(calib_agreement_max_focal_std=0.0))
+    # Without the knob (the default), each is refused.
+    err, tried = _search([_loose(TRUE, 0.008), _loose(nearly, 0.009)])
     assert tried == [0, 1] and str(err).count("(> 0.5 %)") == 2
