@@ -66,8 +66,8 @@ class PipelineConfig(BaseModel):
     # Calibration only, 2026-11-26 (bench/results/2026-11-26-corpus-rt-{t,c}.md and -ra-{t,c}
     # against -k2-{t,c}): see README, "Focal retries".
     calib_retry_focal_factors: tuple[float, ...] = Field(
-        (0.5, 1.2), description="when a candidate window registers too few frames from the first focal "
-        "guess, map it again from these multiples of the image width")
+        (0.5, 1.2), description="when a candidate window registers too few frames from the "
+        "first focal guess, map it again from these multiples of the image width")
     calib_stage1_k2: bool = Field(
         True, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")
