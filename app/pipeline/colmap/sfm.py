@@ -91,8 +91,9 @@ class WindowResult:
     # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
     # each in its own model frame and scale.
     others: list["WindowResult"] = field(default_factory=list)
-    # The focal length (px) stage 1 started from (``WindowRequest.retry_focals_px``).
-    start_focal_px: float = float("nan")
+    # The focal length (px) stage 1 started from when this is the mapping of a retry
+    # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
+    retry_focal_px: float = float("nan")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -227,17 +228,15 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
     99 deg lens whose focal is 0.37 of it) let the two-view bundle adjustment of the initial
     pair run off (k1 = 263) and nothing else registered; from 0.5 of the width the same window
     registered 22 of 22 (corpus c0032, 2026-11-26)."""
-    result.start_focal_px = window.camera.fx
     for focal_px in window.retry_focals_px:
         if len(result.image_names) >= window.retry_below:
             break
         start = window.camera.replace(fx=focal_px, fy=focal_px)
         again = _map_window(pycolmap, job, job.workdir / "features.db", index,
                             replace(window, camera=start), suffix=f"_f{focal_px:.0f}")
-        again.start_focal_px = focal_px
-        log.info("window %d: %d/%d images registered from fx %.0f, %d from fx %.0f", index,
-                 len(again.image_names), again.n_input, focal_px, len(result.image_names),
-                 result.start_focal_px)
+        again.retry_focal_px = focal_px
+        log.info("window %d: %d/%d images registered from fx %.0f, %d before", index,
+                 len(again.image_names), again.n_input, focal_px, len(result.image_names))
         if len(again.image_names) > len(result.image_names):
             result = again
     return result

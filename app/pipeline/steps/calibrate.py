@@ -205,14 +205,13 @@ def summary(calib: Calibration) -> str:
             f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
 
 
-def _trial(window: CalibrationWindow, res: WindowResult, first_fx: float) -> str:
+def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     if res.error:
         return window.label
     spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
-    start = (f" from fx {res.start_focal_px:.0f}" if np.isfinite(res.start_focal_px)
-             and abs(res.start_focal_px - first_fx) > 0.5 else "")
+    start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px{spread}")
 
@@ -301,18 +300,18 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     for k, window in enumerate(windows):
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
-        res, start_fx = map_window(window, start), start.fx
+        res = map_window(window, start)
         why = judge_window(res, cfg, agreement_may_follow=True)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
             reasons.append(f"{window.label}: {why}")
-            trials.append(f"{_trial(window, res, start_fx)}: refused, {why}")
+            trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
         if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
                 and not cfg.calib_require_agreement and not _focal_uncertain(res, cfg)):
             chosen, evidence = [(window, res)], "reprojection"
-            trials.append(f"{_trial(window, res, start_fx)}: accepted, under "
+            trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
             break
         agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
@@ -324,7 +323,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
             chosen, evidence = agreeing + [(window, res)], "agreement"
             log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
-            trials.append(f"{_trial(window, res, start_fx)}: accepted, agrees with "
+            trials.append(f"{_trial(window, res)}: accepted, agrees with "
                           f"{agreeing[0][0].label}")
             break
         good.append((window, res))
@@ -335,7 +334,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         weak = (f"fx uncertain by {100 * res.focal_std_rel:.2f} %" if _focal_uncertain(res, cfg)
                 else "" if cfg.calib_require_agreement
                 else f"above {cfg.calib_accept_reprojection_px:g} px")
-        trials.append(f"{_trial(window, res, start_fx)}: "
+        trials.append(f"{_trial(window, res)}: "
                       + (f"{weak}, " if weak else "") + "kept until another window agrees")
         reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
                        f"other window agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
