@@ -42,6 +42,10 @@ def pytest_collection_modifyitems(items) -> None:
             from _pytest.nodeid import coerce_node_id
 
             item._id = coerce_node_id(f"{module_path}::{item.name}")
+    # Test files are handed to the xdist workers in this order (``--dist loadfile``): the files
+    # that run COLMAP on rendered journeys (minutes each) first, the many quick ones after them to
+    # fill in, so that no long file starts last and leaves the other core idle at the end.
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session")

@@ -25,7 +25,7 @@ from tests.utils.backends import SESSION_TAG, s3_objects
 from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, upload
 from tests.e2e.test_fusion_rendered import seed_calibration
 
-pytestmark = pytest.mark.postgres
+pytestmark = [pytest.mark.postgres, pytest.mark.slow]
 TIMEOUT_S = 240
 
 

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
+from app.commands.process_report import report as json_report
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.facing import angle_between_deg
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.run import process_journey
-from app.pipeline.types import CameraModel, PipelineError
+from app.pipeline.types import (CameraModel, Journey, JourneyResult, PipelineError,
+                                StageReport)
 from tests.utils.journeys import synthetic_journey
 
 pytestmark = pytest.mark.slow
@@ -31,12 +34,29 @@ def _truth_errors(result, truth: dict) -> dict[str, float]:
     return errors
 
 
-def test_turn_journey_calibrates_and_maps_signs(turn_journey_bundle, tmp_path):
+@dataclass(frozen=True)
+class TurnRun:
+    journey: Journey
+    truth: dict
+    result: JourneyResult
+    stages: list[tuple[str, float]]  # (stage, fraction done) as progress reported them
+
+
+@pytest.fixture(scope="module")
+def turn_run(turn_journey_bundle, tmp_path_factory) -> TurnRun:
+    """The turn journey through the whole pipeline, once for the tests that look at its result
+    (a self-calibrating run is the suite's costliest step)."""
     bundle, truth = turn_journey_bundle
-    journey = read_bundle(bundle, tmp_path / "bundle")
-    stages = []
-    result = process_journey(journey, PipelineConfig(), tmp_path / "work",
+    tmp = tmp_path_factory.mktemp("turn-run")
+    journey = read_bundle(bundle, tmp / "bundle")
+    stages: list[tuple[str, float]] = []
+    result = process_journey(journey, PipelineConfig(), tmp / "work",
                              progress=lambda s, f, m="": stages.append((s, f)))
+    return TurnRun(journey, truth, result, stages)
+
+
+def test_turn_journey_calibrates_and_maps_signs(turn_run):
+    result, truth = turn_run.result, turn_run.truth
     true_cam = truth["camera"]
     cam = result.calibration.camera
     for key in ("fx", "fy", "cx", "cy"):
@@ -50,8 +70,28 @@ def test_turn_journey_calibrates_and_maps_signs(turn_journey_bundle, tmp_path):
     true_facing = {str(s["track_id"]): s["facing_deg"] for s in truth["signs"]}
     facing_err = [angle_between_deg(s.facing_deg, true_facing[s.track_id]) for s in result.signs]
     assert np.median(facing_err) <= 15.0 and max(facing_err) <= 45.0, facing_err
-    fractions = [f for _, f in stages]
+    fractions = [f for _, f in turn_run.stages]
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
+
+
+def test_a_processed_journey_reports_every_stage_in_order(turn_run):
+    journey, result = turn_run.journey, turn_run.result
+    assert [r.stage for r in result.report] == ["turns", "calibrate", "ego_motion", "align",
+                                                "triangulate"]
+    turns, calibrate, ego, align, triangulate = result.report
+    assert turns.summary.startswith("1 turn(s)")
+    first, end = result.calibration.windows[0]
+    assert calibrate.summary.startswith(f"self-calibrated on frames {first}-{end - 1}")
+    accepted = [d for d in calibrate.details if "accepted" in d]
+    assert len(accepted) == 1 and accepted[0].startswith(f"frames {first}-{end - 1}:")
+    assert ego.details and all(" registered" in d for d in ego.details)
+    assert "windows aligned to GPS" in align.summary
+    assert triangulate.summary.startswith(f"{len(result.signs)} signs placed")
+    for r in result.rejected:
+        assert any(d.startswith(f"track {r.track_id} ") and r.reason in d
+                   for d in triangulate.details)
+    written = json_report(result, journey.warnings)["report"]
+    assert [StageReport.from_json(r) for r in written] == result.report
 
 
 def test_straight_journey_needs_a_known_calibration(straight_journey_bundle, tmp_path):
@@ -60,10 +100,20 @@ def test_straight_journey_needs_a_known_calibration(straight_journey_bundle, tmp
     with pytest.raises(PipelineError) as err:
         process_journey(journey, PipelineConfig(), tmp_path / "work1")
     assert err.value.stage == "calibrate" and "no turn" in err.value.reason
+    # The reports of the stages that ran say why.
+    assert [r.stage for r in err.value.report] == ["turns", "calibrate"]
+    turns, calibrate = err.value.report
+    assert turns.summary.startswith("no turn of at least 30 deg")
+    assert calibrate.summary.startswith("failed: the journey has no turn")
 
+    # With a stored calibration of the camera, reusing it is what the calibrate stage reports.
     known = CameraModel.from_params(journey.image_width, journey.image_height, truth["camera"])
-    result = process_journey(journey, PipelineConfig(), tmp_path / "work2", known_camera=known)
+    result = process_journey(journey, PipelineConfig(reuse_known_calibration=True),
+                             tmp_path / "work2", known_camera=known)
     assert result.calibration.source == "supplied"
+    calibrate = next(r for r in result.report if r.stage == "calibrate")
+    assert calibrate.summary.startswith(
+        f"stored calibration of camera {journey.camera_id} used")
     errors = _truth_errors(result, truth)
     assert errors and max(errors.values()) < 1.0, errors
 
