@@ -33,7 +33,7 @@ def test_a_wrong_minimum_with_unequal_focal_lengths_is_rejected(fx, fy):
 
 @pytest.mark.parametrize("kwargs, reason", [
     ({"error_px": 1.5}, "reprojection error"),
-    ({"registered": 20}, "frames registered"),
+    ({"registered": 15}, "frames registered"),  # 15/30 < calib_min_registered_ratio
     ({"yaw_deg": 5.0}, "rotation"),
 ])
 def test_a_poor_window_is_rejected_with_its_reason(kwargs, reason):
