@@ -79,7 +79,8 @@ class PipelineConfig(BaseModel):
     # c0004 and c0060 accept a 15/22 window (42 -> 16 s, 166 -> 21 s; fx within 0.3 % either way),
     # calibrate p90 91.8 -> 68.1 s, nothing else changed; check half, run once afterwards: c0001
     # and c0061 stop earlier (33 -> 21 s, 46 -> 11 s; fx 0.01 -> 0.09 %, 0.84 -> 0.76 %), success
-    # and the bars unchanged, median 30.5 -> 28.7 s (bench/results/2026-11-2?-corpus-reg-*).
+    # and the bars unchanged, median 30.5 -> 28.7 s (bench/results/2026-11-26-corpus-reg-p7*,
+    # 2026-11-27-corpus-reg-c-*).
     calib_min_registered_ratio: float = Field(
         0.6, description="a candidate window must register this share of its frames")
     # Half the corpus bar (fx within 1 %), chosen before measuring. COLMAP's covariance is
