@@ -10,10 +10,12 @@ journeys finish, so a long run that dies keeps what it had and ``resume`` contin
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import sys
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -106,10 +108,22 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "focal_std_rel": float(cal.focal_std_rel)}
 
 
-def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool) -> dict:
-    """The JSON record of one journey's run."""
+def bundle_digest(bundle: Path) -> str:
+    """A fingerprint of a bundle's contents: its members' names, sizes and CRC-32s (the zip's own
+    bytes carry write times). Renders of one seed on two machines may differ in a few pixels
+    (c0053's calibration moved between two machines' runs of one commit, 2026-11-27); equal
+    digests rule that out before a difference is blamed on the code."""
+    with zipfile.ZipFile(bundle) as z:
+        lines = sorted(f"{i.filename}:{i.file_size}:{i.CRC:08x}" for i in z.infolist())
+    return hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
+
+
+def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool,
+                   digest: str | None = None) -> dict:
+    """The JSON record of one journey's run; ``digest``: its bundle's ``bundle_digest``."""
     record = {"kind": "journey", "name": entry["name"], "half": entry.get("half"),
               "seed": entry.get("seed"), "params": entry.get("params", {}),
+              "bundle_digest": digest,
               "status": "ok" if out.result is not None else "failed", "error": out.error,
               "n_frames": out.n_frames, "wall_s": round(out.wall_s, 2),
               "timings_s": out.timings_s, "calib_s": out.timings_s.get("calibrate"),
@@ -190,6 +204,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     instead of running the pipeline (``bench.replay``)."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
+    digest = bundle_digest(jdir / "bundle.zip")
     known = None
     if true_camera:
         cam = truth["camera"]
@@ -197,7 +212,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
         config = config.model_copy(update={"reuse_known_calibration": True})
     if replay_dir is not None:
         return journey_record(entry, _replayed(entry["name"], replay_dir, config), truth,
-                              calibrate_only=calibrate_only)
+                              calibrate_only=calibrate_only, digest=digest)
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
         task = RunTask(entry["name"], jdir / "bundle.zip", Path(tmp), config.model_dump(),
                        known_camera=known, calibrate_only=calibrate_only,
@@ -209,7 +224,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
         except Exception as exc:  # noqa: BLE001 - e.g. an unreadable bundle: raised in the child
             out = RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
                             time.perf_counter() - t0, {}, {})
-    return journey_record(entry, out, truth, calibrate_only=calibrate_only)
+    return journey_record(entry, out, truth, calibrate_only=calibrate_only, digest=digest)
 
 
 def _replayed(name: str, replay_dir: Path, config: PipelineConfig) -> RunOutput:

@@ -13,12 +13,23 @@ def _rows(records: list[dict]) -> dict[str, list[str]]:
     return {label: cells for label, *cells in corpus_report.summary_rows(report)}
 
 
+def _other_inputs(before: list[dict], after: list[dict], names: list[str]) -> list[str]:
+    """A warning naming the journeys whose bundles differ between the sides (renders of one seed
+    on another machine), where both records carry ``bundle_digest``."""
+    digests = [{r["name"]: r.get("bundle_digest") for r in side} for side in (before, after)]
+    differ = [n for n in names if digests[0][n] and digests[1][n] and digests[0][n] != digests[1][n]]
+    if not differ:
+        return []
+    return ["", f"**Not the same input:** rendered differently on the two sides: "
+            f"{', '.join(differ)}; their differences are not the change's alone."]
+
+
 def compare(before: list[dict], after: list[dict]) -> str:
     """A markdown table: every summary row, before and after, tuning and check half."""
     names = sorted({r["name"] for r in before} & {r["name"] for r in after})
     b, a = _rows([r for r in before if r["name"] in names]), _rows(
         [r for r in after if r["name"] in names])
-    lines = [f"{len(names)} journeys run on both sides.", "",
+    lines = [f"{len(names)} journeys run on both sides.", *_other_inputs(before, after, names), "",
              "|  | before, tuning | after, tuning | before, check | after, check |",
              "| --- | --- | --- | --- | --- |"]
     for label in [*b, *(k for k in a if k not in b)]:

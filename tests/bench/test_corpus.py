@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ import pytest
 from app.synth.journey import SynthConfig, write_bundle
 from bench import cli as bench_cli
 from bench import corpus_report as cr
-from bench.corpus import (camera_errors, load_corpus, read_jsonl, run_corpus,
+from bench.corpus import (bundle_digest, camera_errors, load_corpus, read_jsonl, run_corpus,
                           select_journeys)
 
 TRUE = {"fx": 1000.0, "fy": 1000.0, "cx": 640.0, "cy": 360.0, "k1": -0.2, "k2": 0.0}
@@ -203,6 +204,7 @@ def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):
     assert meta["calibrate_only"] and len(records) == 1
     rec = records[0]
     assert rec["status"] in ("ok", "failed")
+    assert rec["bundle_digest"] == bundle_digest(corpus / "c0000" / "bundle.zip")
     if rec["status"] == "ok":
         assert rec["calibration"]["source"] == "self"
         assert math.isfinite(rec["calibration"]["errors"]["fx_pct"])
@@ -227,6 +229,32 @@ def test_corpus_compare_puts_before_and_after_side_by_side(tmp_path):
     assert "| journeys run | 4 | 4 | 3 | 3 |" in table
     # A row only the after side has is shown, with a dash before.
     assert "| recall: mappable signs placed (≥ 5 frames, ≥ 12 px) | – | 5/6 (83 %) | – | 0/0 |" in table
+
+
+def _zip(path: Path, members: dict[str, bytes], year: int) -> Path:
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in members.items():
+            z.writestr(zipfile.ZipInfo(name, date_time=(year, 1, 1, 0, 0, 0)), data)
+    return path
+
+
+def test_a_bundle_digest_follows_the_contents_not_the_write_time(tmp_path):
+    members = {"manifest.json": b"{}", "frames/000000.jpg": b"\xff\xd8pixels"}
+    a = bundle_digest(_zip(tmp_path / "a.zip", members, 2025))
+    assert a == bundle_digest(_zip(tmp_path / "b.zip", dict(reversed(members.items())), 2026))
+    other = {**members, "frames/000000.jpg": b"\xff\xd8pixelz"}
+    assert a != bundle_digest(_zip(tmp_path / "c.zip", other, 2025))
+
+
+def test_corpus_compare_names_journeys_rendered_differently(tmp_path):
+    from bench.corpus_compare import compare
+
+    before = [{**r, "bundle_digest": "aaaa"} for r in _records()]
+    after = [{**r, "bundle_digest": "aaaa"} for r in _records()]
+    assert "Not the same input" not in compare(before, after)
+    after[1]["bundle_digest"] = "bbbb"
+    assert (f"**Not the same input:** rendered differently on the two sides: "
+            f"{after[1]['name']};") in compare(before, after)
 
 
 def test_a_missed_sign_of_a_bundle_without_track_ids_gets_the_reason_of_the_track_it_became():
