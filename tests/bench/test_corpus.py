@@ -66,6 +66,28 @@ def test_camera_errors_units():
     assert e["k2_pct"] is None and e["k2_abs"] == pytest.approx(0.05)  # true k2 = 0
 
 
+def test_distortion_error_is_the_largest_shift_in_the_image():
+    true = {"fx": 500.0, "fy": 500.0, "cx": 500.0, "cy": 500.0, "k1": 0.0, "k2": 0.0,
+            "width": 1001, "height": 1001}
+    assert camera_errors(true, true)["distortion_px"] == pytest.approx(0.0, abs=1e-9)
+    # k1 0.01 off moves the corner (normalised radius sqrt 2) by 500 * sqrt(2) * 0.01 * 2 px.
+    e = camera_errors({**true, "k1": 0.01}, true)
+    assert e["distortion_px"] == pytest.approx(500 * math.sqrt(2) * 0.02, rel=1e-6)
+    # k1 and k2 errors that cancel at the corner leave less than either alone.
+    both = camera_errors({**true, "k1": 0.01, "k2": -0.005}, true)["distortion_px"]
+    assert both < 0.5 * e["distortion_px"]
+    assert "distortion_px" not in camera_errors(true, TRUE)  # no image size: not computed
+
+
+def test_records_written_before_the_distortion_error_get_it_from_their_parameters():
+    rec = _record("t9", "tuning")
+    rec["params"].update({"fx": 1000.0, "fy": 1000.0, "cx": 640.0, "cy": 360.0, "k2": 0.0})
+    rec["calibration"]["camera"] = {**TRUE, "k1": -0.21}
+    assert cr.error(rec, "distortion_px") > 0.5
+    report = cr.build_report({}, [rec])
+    assert any(row[0] == "\\|distortion\\| px median / p90" for row in cr.summary_rows(report))
+
+
 def test_failure_reasons_are_normalised_and_grouped():
     assert cr.failure_reasons(CALIB_FAIL) == ["calibrate: fx/fy = X is implausible",
                                               "calibrate: only N/M frames registered"]
