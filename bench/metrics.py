@@ -141,7 +141,7 @@ def distortion_error_px(est: dict[str, float], true: CameraModel, n: int = 41) -
     """The largest distance over the image (an ``n`` x ``n`` grid of its pixels) between where
     ``est``'s k1, k2 and ``true``'s put a ray, both through ``true``'s fx, fy, cx, cy: what an
     error in the distortion costs in the image. k1's per cent does not say it: on a lens with k1
-    +0.003, k1 86 % off moved no pixel by more than 0.5 px, while k1 within 1 % and k2 off left
+    +0.003, k1 86 % off moved no pixel by more than 0.5 px, while k1 about 1 % off and k2 off left
     6-7 px at the corners of two wide images (corpus, 2026-11-27)."""
     u, v = np.meshgrid(np.linspace(0.0, true.width - 1.0, n), np.linspace(0.0, true.height - 1.0, n))
     xy_u = undistort_normalized(true, np.stack([u, v], axis=-1).reshape(-1, 2))
