@@ -17,7 +17,8 @@ def _other_inputs(before: list[dict], after: list[dict], names: list[str]) -> li
     """A warning naming the journeys whose bundles differ between the sides (renders of one seed
     on another machine), where both records carry ``bundle_digest``."""
     digests = [{r["name"]: r.get("bundle_digest") for r in side} for side in (before, after)]
-    differ = [n for n in names if digests[0][n] and digests[1][n] and digests[0][n] != digests[1][n]]
+    differ = [n for n in names
+              if digests[0][n] and digests[1][n] and digests[0][n] != digests[1][n]]
     if not differ:
         return []
     return ["", f"**Not the same input:** rendered differently on the two sides: "

@@ -57,7 +57,8 @@ def error(r: dict, key: str) -> float | None:
     if value is None and key == "distortion_px" and cal.get("camera"):
         # Records written before the field: the truth is in the journey's parameters.
         p = r["params"]
-        if all(p.get(k) is not None for k in ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")):
+        if all(p.get(k) is not None
+               for k in ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")):
             value = distortion_error_px(cal["camera"], CameraModel.from_params(
                 int(p["width"]), int(p["height"]), p))
     return value
