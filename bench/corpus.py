@@ -112,13 +112,17 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "focal_std_rel": float(cal.focal_std_rel)}
 
 
-def bundle_digest(bundle: Path) -> str:
+def bundle_digest(bundle: Path) -> str | None:
     """A fingerprint of a bundle's contents: its members' names, sizes and CRC-32s (the zip's own
-    bytes carry write times). Renders of one seed on two machines may differ in a few pixels
+    bytes carry write times); None for an unreadable bundle, whose run then fails with the
+    pipeline's own reason. Renders of one seed on two machines may differ in a few pixels
     (c0053's calibration moved between two machines' runs of one commit, 2026-11-27); equal
     digests rule that out before a difference is blamed on the code."""
-    with zipfile.ZipFile(bundle) as z:
-        lines = sorted(f"{i.filename}:{i.file_size}:{i.CRC:08x}" for i in z.infolist())
+    try:
+        with zipfile.ZipFile(bundle) as z:
+            lines = sorted(f"{i.filename}:{i.file_size}:{i.CRC:08x}" for i in z.infolist())
+    except (OSError, zipfile.BadZipFile):
+        return None
     return hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
 
 

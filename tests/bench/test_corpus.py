@@ -266,6 +266,10 @@ def test_a_bundle_digest_follows_the_contents_not_the_write_time(tmp_path):
     assert a == bundle_digest(_zip(tmp_path / "b.zip", dict(reversed(members.items())), 2026))
     other = {**members, "frames/000000.jpg": b"\xff\xd8pixelz"}
     assert a != bundle_digest(_zip(tmp_path / "c.zip", other, 2025))
+    # An unreadable bundle has none: its run fails with the pipeline's reason, the bench goes on.
+    (tmp_path / "broken.zip").write_bytes(b"not a zip")
+    assert bundle_digest(tmp_path / "broken.zip") is None
+    assert bundle_digest(tmp_path / "missing.zip") is None
 
 
 def test_corpus_compare_names_journeys_rendered_differently(tmp_path):
