@@ -43,8 +43,10 @@ class PipelineConfig(BaseModel):
     calib_images: int = Field(22, description="images a calibration candidate maps, spread by "
                               "distance travelled and heading change (calib_rotation_share)")
     calib_min_images: int = Field(
-        12, description="fewest images a candidate maps: where frames are further apart than "
-        "calib_window_m / calib_min_images, the window grows")
+        12, description="fewest images a candidate maps")
+    calib_window_min_frames: int = Field(
+        12, description="frames a candidate's road holds at least: where frames are further "
+        "apart than calib_window_m / this, the window grows (low frame rates, high speeds)")
     calib_max_candidates: int = Field(
         7, description="candidate windows tried per journey (most stop at the first; a lone "
         "window above calib_accept_reprojection_px must be confirmed by another)")

@@ -105,11 +105,15 @@ def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
     turn = TurnWindow(start=0, end=200, vertex=100, angle_deg=90.0, rotation_deg=90.0)
     frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
     assert np.all(np.diff(s_m[frames]) > 0)  # no two images from where the car stood
-    # 5 m between frames (5 Hz at 25 m/s): at least calib_min_images, over a longer stretch.
+    # 5 m between frames (5 Hz at 25 m/s): at least calib_window_min_frames, over a longer
+    # stretch of road.
     s_m = _track(5.0, 40)
     turn = TurnWindow(start=0, end=40, vertex=20, angle_deg=90.0, rotation_deg=90.0)
     frames = candidate_windows([turn], s_m, cfg)[0].frame_idx
-    assert len(frames) == cfg.calib_min_images
+    assert len(frames) == cfg.calib_window_min_frames
+    longer = candidate_windows([turn], s_m, PipelineConfig(calib_window_min_frames=20))
+    assert len(longer[0].frame_idx) == 20
+    assert s_m[longer[0].frame_idx[-1]] - s_m[longer[0].frame_idx[0]] == pytest.approx(95.0)
 
 
 @pytest.mark.parametrize("radius_m, turn_deg", [(50.0, 141.0), (60.0, 80.0), (6.0, 82.0)])

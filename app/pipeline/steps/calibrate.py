@@ -80,7 +80,7 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
     ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``); ``rot_deg`` (N,):
     heading change accumulated up to each frame (``turns.cumulative_rotation_deg``). A window spans
     ``calib_window_m`` of road beyond its turn's curve (up to ``calib_window_max_m``), or more where
-    frames are so far apart that it would hold fewer than ``calib_min_images``; its
+    frames are so far apart that it would hold fewer than ``calib_window_min_frames``; its
     ``calib_images`` frames are spread by distance and heading change, not by frame count, so
     capture rate, speed and stops do not change what a window sees (a fixed 44 frames
     spanned 13 m at 20 Hz and 6 m/s, where only 3 of 22 images registered, and 105 m at 5 Hz and
@@ -95,7 +95,7 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
             moving = np.diff(s_m[turn.start:turn.end])
             step_m = float(np.median(moving[moving > 0])) if np.any(moving > 0) else 0.0
             span_m = min(max(min(cfg.calib_window_m + turn.curve_m, cfg.calib_window_max_m),
-                             (cfg.calib_min_images - 1) * step_m),
+                             (cfg.calib_window_min_frames - 1) * step_m),
                          float(s_m[-1] - s_m[0]))
             lo_m = float(np.clip(s_m[turn.vertex] + offset * span_m, s_m[0], s_m[-1] - span_m))
             frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, cfg.calib_images,
