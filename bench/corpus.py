@@ -26,8 +26,8 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult
 from bench import corpus_report, replay
 from bench.evaluate import truth_id
-from bench.metrics import (RECALL_MIN_FRAMES, calibration_summary, distortion_error_px,
-                           evaluate_result, mappable_ids)
+from bench.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
+                           mappable_ids, true_distortion_error_px)
 from bench.run_pipeline import RunOutput, RunTask, detections_of, run_isolated
 from bench.runner import run_meta  # commit, machine, pycolmap: as the other benches
 from bench.runner import finite
@@ -88,7 +88,8 @@ def pipeline_config(overrides: dict[str, Any]) -> PipelineConfig:
 def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, float | None]:
     """fx, fy, k1, k2 in % of the true value (None when the true value is 0), k1, k2 also
     absolute, cx, cy in pixels: a principal point is judged against the pixel grid, not its own
-    size; ``distortion_px`` (``metrics.distortion_error_px``) when ``true`` has the image size."""
+    size; ``distortion_px`` (``metrics.true_distortion_error_px``) when ``true`` has the image
+    size."""
     out: dict[str, float | None] = {}
     for k in ("fx", "fy", "k1", "k2"):
         out[f"{k}_pct"] = 100.0 * (est[k] - true[k]) / abs(true[k]) if true[k] else None
@@ -96,9 +97,9 @@ def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, fl
         out[f"{k}_abs"] = est[k] - true[k]
     for k in ("cx", "cy"):
         out[f"{k}_px"] = est[k] - true[k]
-    if true.get("width") and true.get("height"):
-        out["distortion_px"] = distortion_error_px(
-            est, CameraModel.from_params(int(true["width"]), int(true["height"]), true))
+    distortion_px = true_distortion_error_px(est, true)
+    if distortion_px is not None:
+        out["distortion_px"] = distortion_px
     return out
 
 

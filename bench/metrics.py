@@ -152,6 +152,17 @@ def distortion_error_px(est: dict[str, float], true: CameraModel, n: int = 41) -
     return float(np.max(np.hypot(true.fx * xy_u[:, 0] * shift, true.fy * xy_u[:, 1] * shift)))
 
 
+def true_distortion_error_px(est: dict[str, float], true: dict) -> float | None:
+    """``distortion_error_px`` against a true camera given as a dict (a corpus journey's
+    parameters, a truth file's camera): None unless it has the image size and all six
+    intrinsics."""
+    keys = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")
+    if any(true.get(k) is None for k in keys):
+        return None
+    return distortion_error_px(est, CameraModel.from_params(int(true["width"]),
+                                                            int(true["height"]), true))
+
+
 def calibration_summary(cal: Calibration, errors: Callable[[dict], dict], *, camera_key: str,
                         errors_key: str) -> dict:
     """The estimated camera and its stage-1 start with their ``errors(params)``; the key names
