@@ -13,7 +13,7 @@ from sqlalchemy import select
 from app.pipeline.bundle import read_bundle
 from app.service.jobs import fusion
 from app.service.db.session import session_scope
-from app.service.db.models import JourneyRow, MapSignRow, MapSignMemberRow
+from app.service.db.models import JourneyRow, JourneySignRow, MapSignRow, MapSignMemberRow
 from tests.utils import map_support as ms
 from tests.utils.service_support import bf_zip
 
@@ -151,3 +151,46 @@ def test_a_journey_being_rerun_drops_out_of_the_map_until_it_is_done(stack, jour
     fused = live_map(stack, world)
     assert len(fused) == 3 and all(s[5] == 2 for s in fused)
     assert all(not any(m.startswith(f"j-{tag}-0:") for m in s[8]) for s in fused)
+
+
+def test_a_journey_reads_done_only_once_the_map_holds_its_signs(stack, journey_data, monkeypatch):
+    # A client polls the journey and then asks the map: the store and the fusion must commit
+    # together, or it can read "done" and find no map sign of it.
+    world = ms.make_world(3)
+    journey_id = f"j-{secrets.token_hex(4)}"
+    seen_while_fusing = []
+    fuse_region = fusion.fuse_region
+
+    def fuse_and_look_from_outside(session, region, settings):
+        with session_scope(stack.url) as other:
+            seen_while_fusing.append(other.get(JourneyRow, journey_id).status)
+        return fuse_region(session, region, settings)
+
+    monkeypatch.setattr(fusion, "fuse_region", fuse_and_look_from_outside)
+    ms.insert_done_journey(stack.settings, journey_data, journey_id, 0,
+                           ms.journey_result(world, np.random.default_rng(2)))
+    assert seen_while_fusing == ["running"]
+    assert len(live_map(stack, world)) == 3
+
+
+def test_a_failed_fusion_still_stores_the_journey_and_the_next_fusion_has_it(
+        stack, journey_data, monkeypatch):
+    world = ms.make_world(3)
+    rng = np.random.default_rng(4)
+    tag = secrets.token_hex(4)
+
+    def broken_fusion(session, region, settings):
+        raise RuntimeError("fusion broke")
+
+    monkeypatch.setattr(fusion, "fuse_region", broken_fusion)
+    ms.insert_done_journey(stack.settings, journey_data, f"j-{tag}-0", 0,
+                           ms.journey_result(world, rng))
+    with session_scope(stack.url) as session:
+        assert session.get(JourneyRow, f"j-{tag}-0").status == "done"
+        assert len(session.scalars(select(JourneySignRow).where(
+            JourneySignRow.journey_id == f"j-{tag}-0")).all()) == 3
+    assert live_map(stack, world) == []
+    monkeypatch.undo()
+    ms.insert_done_journey(stack.settings, journey_data, f"j-{tag}-1", 1,
+                           ms.journey_result(world, rng))
+    assert [s[5] for s in live_map(stack, world)] == [2, 2, 2]

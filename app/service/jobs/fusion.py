@@ -131,16 +131,24 @@ def store_journey(session: Session, journey_id: str, attempt: int, journey: Jour
 def store_and_fuse(url: str, journey_id: str, attempt: int, journey: JourneyData,
                    result: JourneyResult, timings_s: dict[str, float],
                    known_camera: CameraModel | None, settings: Settings) -> bool:
-    """``store_journey`` in its own transaction, then the re-fusion of the region around it (a
-    fusion failure is logged: the signs stay stored and the next fusion of the place has them)."""
-    with session_scope(url) as session:
-        if not store_journey(session, journey_id, attempt, journey, result, timings_s,
-                             known_camera, settings):
-            return False
+    """``store_journey`` and the re-fusion of the region around it in ONE transaction, so that a
+    client that sees the journey done finds its signs in the map too (stored first and fused in a
+    second commit, a poller could read "done" and an empty map in between). When the fusion
+    fails, the journey is stored alone (logged): its signs stay, the next fusion of the place has
+    them."""
     try:
-        refuse_around(url, journey_id, settings)
+        with fusion_session(url) as session:
+            if not store_journey(session, journey_id, attempt, journey, result, timings_s,
+                                 known_camera, settings):
+                return False
+            summary = _fuse_around(session, journey_id, settings)
     except Exception:
-        log.exception("journey %s: map fusion failed", journey_id)
+        log.exception("journey %s: map fusion failed; its signs are stored without it", journey_id)
+        with session_scope(url) as session:
+            return store_journey(session, journey_id, attempt, journey, result, timings_s,
+                                 known_camera, settings)
+    if summary is not None:
+        _log(f"journey {journey_id}", summary)
     return True
 
 
@@ -153,13 +161,19 @@ def _journey_region(session: Session, journey_id: str, margin_m: float) -> Regio
     return Region.around([p[0] for p in latlon], [p[1] for p in latlon], margin_m)
 
 
+def _fuse_around(session: Session, journey_id: str, settings: Settings) -> FusionSummary | None:
+    """Re-fuse the region around the journey; the caller holds the fusion lock."""
+    region = _journey_region(session, journey_id, settings.fusion_region_margin_m)
+    return fuse_region(session, region, settings) if region is not None else None
+
+
 def refuse_around(url: str, journey_id: str, settings: Settings) -> FusionSummary | None:
+    """Re-fuse the region around a stored journey in its own transaction (the worker's repair of
+    a fusion that failed after the store)."""
     with fusion_session(url) as session:
-        region = _journey_region(session, journey_id, settings.fusion_region_margin_m)
-        if region is None:
-            return None
-        summary = fuse_region(session, region, settings)
-    _log(f"journey {journey_id}", summary)
+        summary = _fuse_around(session, journey_id, settings)
+    if summary is not None:
+        _log(f"journey {journey_id}", summary)
     return summary
 
 
