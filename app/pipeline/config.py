@@ -185,6 +185,9 @@ class PipelineConfig(BaseModel):
     # mapped by COLMAP; "sift": COLMAP's SIFT extraction and sequential matching, as calibration.
     ego_front_end: Literal["klt", "sift"] = Field(
         "klt", description="how ego-motion finds correspondences between frames")
+    ego_sift_min_spacing_m: float = Field(
+        0.0, description="map with SIFT instead of KLT where the mapped frames lie farther apart "
+        "than this (metres at the journey's moving speed; 0: never)")
     klt_max_corners: int = Field(600, description="KLT corners kept per frame")
     klt_pair_overlap: int = Field(
         4, description="KLT: mapped frames a frame is paired with ahead (covers the initial pair)")

@@ -200,7 +200,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                      f"candidate window {k + 1} of at most {total} ({window.label})")
 
     ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
-                       step=the_plan.ego_step, front_end=config.ego_front_end, config=config,
+                       step=the_plan.ego_step, front_end=the_plan.ego_front_end, config=config,
                        xyz_gps=xyz_gps, verbose=verbose)
     calib: Calibration
     with journal.stage("calibrate") as entry:

@@ -232,6 +232,21 @@ def test_frames_far_apart_are_all_mapped_and_a_standing_car_does_not_count_as_sl
     assert frame_step(np.zeros(50), 2, 2.5) == 2
 
 
+def test_frames_mapped_metres_apart_get_sift_and_close_ones_keep_klt():
+    from app.pipeline.steps.plan import ego_front_end
+
+    at_10hz_8mps = np.arange(300) * 0.8  # the suite's journeys: 1.6 m between mapped frames
+    at_5hz_18mps = np.arange(90) * 3.6
+    assert ego_front_end(at_10hz_8mps, 2, "klt", 3.0) == "klt"
+    assert ego_front_end(at_5hz_18mps, 2, "klt", 3.0) == "sift"
+    assert ego_front_end(at_5hz_18mps, 2, "klt", 0.0) == "klt"  # 0: never
+    assert ego_front_end(at_10hz_8mps, 2, "sift", 3.0) == "sift"  # asked for everywhere
+    # A long stop does not make the moving part look slow; a car that never moves keeps KLT.
+    stop_and_go = np.concatenate([np.zeros(200), np.arange(1, 91) * 3.6])
+    assert ego_front_end(stop_and_go, 2, "klt", 3.0) == "sift"
+    assert ego_front_end(np.zeros(50), 2, "klt", 3.0) == "klt"
+
+
 def test_more_initial_pairs_are_tried_with_half_the_gap_and_off_the_middle():
     names = [f"{i:06d}.jpg" for i in range(100)]
     (plain,) = ego_motion.requests([(0, 80)], names, CAMERA, step=2, init_gap_frames=8)

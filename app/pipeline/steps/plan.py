@@ -32,6 +32,7 @@ class JourneyPlan:
     off_grid: np.ndarray
     ego_frames: np.ndarray
     ego_step: int = 1
+    ego_front_end: str = "klt"
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
@@ -65,18 +66,38 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
     return JourneyPlan(turns=turn_windows, calib_windows=calib_windows, tracks=tracks,
                        ego_windows=ego_windows, off_grid=off_grid,
                        ego_frames=ego_motion.mapped_frames(ego_windows, ego_step, off_grid),
-                       ego_step=ego_step)
+                       ego_step=ego_step,
+                       ego_front_end=ego_front_end(s_m, ego_step, config.ego_front_end,
+                                                   config.ego_sift_min_spacing_m))
+
+
+def moving_spacing_m(s_m: np.ndarray) -> float | None:
+    """Mean distance (m) between consecutive frames while the car moves; ``s_m`` (N,) is the
+    track length per frame (flat while the car stands, which must not make it look slow). None
+    when it never moves."""
+    step_m = np.diff(np.asarray(s_m, float))
+    moving = step_m[step_m > 0.05]
+    return float(np.mean(moving)) if moving.size else None
 
 
 def frame_step(s_m: np.ndarray, max_step: int, max_spacing_m: float) -> int:
     """Map every n-th frame, n from ``max_step`` down to 1, so that mapped frames lie at most
-    ``max_spacing_m`` apart at the speed the car moves; ``s_m`` (N,) is the track length per
-    frame (flat while the car stands, which must not make it look slow)."""
-    step_m = np.diff(np.asarray(s_m, float))
-    moving = step_m[step_m > 0.05]
-    if moving.size == 0 or max_spacing_m <= 0:
+    ``max_spacing_m`` apart at the speed the car moves (``moving_spacing_m``)."""
+    spacing_m = moving_spacing_m(s_m)
+    if spacing_m is None or max_spacing_m <= 0:
         return max_step
-    return int(min(max_step, max(1, np.floor(max_spacing_m / float(np.mean(moving))))))
+    return int(min(max_step, max(1, np.floor(max_spacing_m / spacing_m))))
+
+
+def ego_front_end(s_m: np.ndarray, step: int, front_end: str, sift_min_spacing_m: float) -> str:
+    """The ego-motion front end: ``front_end``, but SIFT where the mapped frames (every ``step``-th)
+    lie more than ``sift_min_spacing_m`` apart. KLT follows each corner by a local search from
+    where it was in the previous mapped frame; metres apart, near objects jump too far, windows
+    register a few frames and signs go unplaced, while SIFT matches across the gap."""
+    spacing_m = moving_spacing_m(s_m)
+    if front_end == "sift" or sift_min_spacing_m <= 0 or spacing_m is None:
+        return front_end
+    return "sift" if step * spacing_m > sift_min_spacing_m else front_end
 
 
 def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
@@ -92,5 +113,5 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
     planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
                f"window(s) mapping {len(plan.ego_frames)} frames (one in {plan.ego_step}, and "
-               "every frame of short tracks)"]
+               f"every frame of short tracks) with {plan.ego_front_end.upper()} correspondences"]
     return StageReport("turns", summary, tuple(turns_found + planned))
