@@ -218,33 +218,42 @@ def test_a_short_track_off_the_step_grid_keeps_all_its_frames():
     assert request.init_pair == (names[130], names[138])  # on the grid, in the middle
 
 
-def test_frames_far_apart_are_all_mapped_and_a_standing_car_does_not_count_as_slow():
+def test_frame_spacing_is_the_moving_speed_and_a_turn_or_a_stop_does_not_shorten_it():
+    from app.pipeline.steps.plan import moving_spacing_m
+
+    rng = np.random.default_rng(0)
+    t = np.arange(200) / 10.0  # 10 Hz, 9 m/s round a 20 m radius U-turn and on
+    s = 9.0 * t
+    arc = s < np.pi * 20.0
+    xyz = np.zeros((200, 3))
+    xyz[arc, 0], xyz[arc, 1] = 20.0 * np.sin(s[arc] / 20.0), 20.0 - 20.0 * np.cos(s[arc] / 20.0)
+    xyz[~arc, 0], xyz[~arc, 1] = -(s[~arc] - np.pi * 20.0), 40.0
+    assert moving_spacing_m(xyz, t) == pytest.approx(0.9, rel=0.05)
+    noisy = xyz + np.c_[rng.normal(0.0, 0.3, (200, 2)), np.zeros(200)]  # OXTS-like fixes
+    assert moving_spacing_m(noisy, t) == pytest.approx(0.9, rel=0.05)
+    stop_and_go = np.concatenate([np.zeros((100, 3)), xyz[:100]])  # half the journey standing
+    assert moving_spacing_m(stop_and_go, t) == pytest.approx(0.9, rel=0.05)
+    assert moving_spacing_m(np.zeros((50, 3)), t[:50]) is None
+
+
+def test_frames_far_apart_are_all_mapped():
     from app.pipeline.steps.plan import frame_step
 
-    at_10hz_9mps = np.arange(300) * 0.9  # KITTI-like: 0.9 m per frame
-    at_5hz_10mps = np.arange(100) * 2.0
-    assert frame_step(at_10hz_9mps, 2, 2.5) == 2
-    assert frame_step(at_5hz_10mps, 2, 2.5) == 1
-    assert frame_step(at_5hz_10mps, 2, 0.0) == 2  # 0: the fixed step
-    # Half the journey standing still: the moving half sets the spacing.
-    stop_and_go = np.concatenate([np.zeros(100), np.arange(1, 101) * 2.0])
-    assert frame_step(stop_and_go, 2, 2.5) == 1
-    assert frame_step(np.zeros(50), 2, 2.5) == 2
+    assert frame_step(0.9, 2, 2.5) == 2  # KITTI-like: 0.9 m per frame
+    assert frame_step(2.0, 2, 2.5) == 1  # 5 Hz at 10 m/s
+    assert frame_step(2.0, 2, 0.0) == 2  # 0: the fixed step
+    assert frame_step(None, 2, 2.5) == 2  # a car that never moves
 
 
 def test_frames_mapped_metres_apart_get_sift_and_close_ones_keep_klt():
     from app.pipeline.steps.plan import ego_front_end
 
-    at_10hz_8mps = np.arange(300) * 0.8  # the suite's journeys: 1.6 m between mapped frames
-    at_5hz_18mps = np.arange(90) * 3.6
-    assert ego_front_end(at_10hz_8mps, 2, "klt", 3.0) == "klt"
-    assert ego_front_end(at_5hz_18mps, 2, "klt", 3.0) == "sift"
-    assert ego_front_end(at_5hz_18mps, 2, "klt", 0.0) == "klt"  # 0: never
-    assert ego_front_end(at_10hz_8mps, 2, "sift", 3.0) == "sift"  # asked for everywhere
-    # A long stop does not make the moving part look slow; a car that never moves keeps KLT.
-    stop_and_go = np.concatenate([np.zeros(200), np.arange(1, 91) * 3.6])
-    assert ego_front_end(stop_and_go, 2, "klt", 3.0) == "sift"
-    assert ego_front_end(np.zeros(50), 2, "klt", 3.0) == "klt"
+    assert ego_front_end(0.8, 2, "klt", 1.7) == "klt"  # the suite: 1.6 m between mapped frames
+    assert ego_front_end(3.6, 2, "klt", 1.7) == "sift"  # 5 Hz at 18 m/s
+    assert ego_front_end(0.9, 2, "klt", 1.7) == "sift"
+    assert ego_front_end(3.6, 2, "klt", 0.0) == "klt"  # 0: never
+    assert ego_front_end(0.8, 2, "sift", 1.7) == "sift"  # asked for everywhere
+    assert ego_front_end(None, 2, "klt", 1.7) == "klt"
 
 
 def test_more_initial_pairs_are_tried_with_half_the_gap_and_off_the_middle():
