@@ -186,10 +186,10 @@ class PipelineConfig(BaseModel):
     ego_front_end: Literal["klt", "sift"] = Field(
         "klt", description="how ego-motion finds correspondences between frames")
     # 1.7 on the corpus's tuning half (true cameras, reproducible COLMAP, 2026-11-27), over the 14
-    # journeys whose mapped frames lie 1.5-7.3 m apart (12 of them above 1.7 m, now SIFT): 181
+    # journeys whose mapped frames lie 1.5-7.2 m apart (11 of them above 1.7 m, now SIFT): 181
     # instead of 171 of 198 mappable signs placed, OXTS-like relative error 0.179 -> 0.095 m mean,
-    # absolute median 0.26 -> 0.15 m, phone-like relative 0.79 -> 0.33 m; their ego-motion took
-    # 4.6x as long. The suite's journeys (1.6 m) keep KLT (bench/results/2026-11-27-ego-sift.md).
+    # absolute median 0.26 -> 0.15 m, phone-like relative 0.79 -> 0.31 m; their ego-motion took
+    # 5x as long. The suite's journeys (1.6 m) keep KLT (bench/results/2026-11-27-ego-sift.md).
     ego_sift_min_spacing_m: float = Field(
         1.7, description="map with SIFT instead of KLT where the mapped frames lie farther apart "
         "than this (metres at the journey's moving speed; 0: never)")

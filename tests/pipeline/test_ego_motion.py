@@ -230,7 +230,14 @@ def test_frame_spacing_is_the_moving_speed_and_a_turn_or_a_stop_does_not_shorten
     xyz[~arc, 0], xyz[~arc, 1] = -(s[~arc] - np.pi * 20.0), 40.0
     assert moving_spacing_m(xyz, t) == pytest.approx(0.9, rel=0.05)
     noisy = xyz + np.c_[rng.normal(0.0, 0.3, (200, 2)), np.zeros(200)]  # OXTS-like fixes
-    assert moving_spacing_m(noisy, t) == pytest.approx(0.9, rel=0.05)
+    assert moving_spacing_m(noisy, t, 0.3) == pytest.approx(0.9, rel=0.05)
+    # Phone-like fixes on a straight road, 3 m at 1 Hz, interpolated at the frames: their spread
+    # is taken off.
+    t_fix = np.arange(0.0, 20.0, 1.0)
+    fixes = np.c_[9.0 * t_fix, np.zeros((20, 2))] + rng.normal(0.0, 3.0, (20, 3))
+    phone = np.stack([np.interp(t, t_fix, fixes[:, i]) for i in range(3)], 1)
+    assert moving_spacing_m(phone, t) > moving_spacing_m(phone, t, 3.0)
+    assert moving_spacing_m(phone, t, 3.0) == pytest.approx(0.9, rel=0.12)  # 0.80-0.99 by seed
     stop_and_go = np.concatenate([np.zeros((100, 3)), xyz[:100]])  # half the journey standing
     assert moving_spacing_m(stop_and_go, t) == pytest.approx(0.9, rel=0.05)
     assert moving_spacing_m(np.zeros((50, 3)), t[:50]) is None

@@ -50,7 +50,7 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
         turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m))
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
-    spacing_m = moving_spacing_m(xyz_gps, timestamp_s)
+    spacing_m = moving_spacing_m(xyz_gps, timestamp_s, journey.gps_noise_m)
     ego_step = frame_step(spacing_m, config.ego_frame_step, config.ego_max_spacing_m)
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
     margin = config.sign_window_margin_frames
@@ -73,25 +73,30 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                                                    config.ego_sift_min_spacing_m))
 
 
-def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, *, baseline_s: float = 2.0,
-                     min_speed_mps: float = 1.0) -> float | None:
+def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | None = None, *,
+                     baseline_s: float = 2.0, min_speed_mps: float = 1.0) -> float | None:
     """Distance (m) between consecutive frames at the speed the car cruises at: the speed it
     keeps or exceeds for a quarter of its moving time (faster than ``min_speed_mps``), times the
     median frame interval; stops and the slowing down around them must not make it look slow
     (the median moving speed of a 10 s journey with two stops was a fifth of its cruise speed).
-    Speeds come from the frames' GPS positions ``xyz`` (N, 3) ``baseline_s`` apart, which the GPS
-    noise barely lengthens; the smoothed track would cut a sharp turn short, by 30 % on a 1 Hz
-    U-turn. None when the car never moves."""
+    Speeds come from the frames' GPS positions ``xyz`` (N, 3) ``baseline_s`` apart; the fixes'
+    white noise ``noise_m`` (per axis, ``geometry.gps_noise``) spreads them by sqrt(2) noise_m /
+    baseline, whose 75th percentile is taken off (phone-like 3 m at 1 Hz made 8 m/s look like
+    9.2). The smoothed track would cut a sharp turn short, by 30 % on a 1 Hz U-turn. None when
+    the car never moves."""
     t = np.asarray(timestamp_s, float)
     if len(t) < 3:
         return None
     frame_s = float(np.median(np.diff(t)))
     k = int(np.clip(round(baseline_s / 2.0 / max(frame_s, 1e-6)), 1, (len(t) - 1) // 2))
     xy = np.asarray(xyz, float)[:, :2]
-    speed = np.linalg.norm(xy[2 * k:] - xy[:-2 * k], axis=1) / np.maximum(t[2 * k:] - t[:-2 * k],
-                                                                         1e-6)
+    dt = np.maximum(t[2 * k:] - t[:-2 * k], 1e-6)
+    speed = np.linalg.norm(xy[2 * k:] - xy[:-2 * k], axis=1) / dt
     moving = speed[speed > min_speed_mps]
-    return float(np.percentile(moving, 75) * frame_s) if moving.size else None
+    if not moving.size:
+        return None
+    spread = 0.674 * np.sqrt(2.0) * (noise_m or 0.0) / float(np.median(dt))
+    return float(max(np.percentile(moving, 75) - spread, 0.0) * frame_s)
 
 
 def frame_step(spacing_m: float | None, max_step: int, max_spacing_m: float) -> int:
