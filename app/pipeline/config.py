@@ -192,7 +192,7 @@ class PipelineConfig(BaseModel):
     # 5x as long. The suite's journeys (1.6 m) keep KLT (bench/results/2026-11-27-ego-sift.md).
     ego_sift_min_spacing_m: float = Field(
         1.7, description="map with SIFT instead of KLT where the mapped frames lie farther apart "
-        "than this (metres at the journey's moving speed; 0: never)")
+        "than this (metres at the journey's cruise speed; 0: never)")
     klt_max_corners: int = Field(600, description="KLT corners kept per frame")
     klt_pair_overlap: int = Field(
         4, description="KLT: mapped frames a frame is paired with ahead (covers the initial pair)")

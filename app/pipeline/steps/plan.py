@@ -33,7 +33,7 @@ class JourneyPlan:
     ego_frames: np.ndarray
     ego_step: int = 1
     ego_front_end: str = "klt"
-    frame_spacing_m: float | None = None  # between consecutive frames while moving
+    frame_spacing_m: float | None = None  # between consecutive frames at the cruise speed
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
@@ -133,6 +133,6 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
                f"window(s) mapping {len(plan.ego_frames)} frames (one in {plan.ego_step}, and "
                f"every frame of short tracks) with {plan.ego_front_end.upper()} correspondences"
-               + (f", frames {plan.frame_spacing_m:.2f} m apart while moving"
+               + (f", frames {plan.frame_spacing_m:.2f} m apart at the cruise speed"
                   if plan.frame_spacing_m is not None else "")]
     return StageReport("turns", summary, tuple(turns_found + planned))

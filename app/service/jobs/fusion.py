@@ -143,7 +143,8 @@ def store_and_fuse(url: str, journey_id: str, attempt: int, journey: JourneyData
                 return False
             summary = _fuse_around(session, journey_id, settings)
     except Exception:
-        log.exception("journey %s: map fusion failed; its signs are stored without it", journey_id)
+        log.exception("journey %s: storing it with the map fusion failed; storing it alone",
+                      journey_id)
         with session_scope(url) as session:
             return store_journey(session, journey_id, attempt, journey, result, timings_s,
                                  known_camera, settings)
