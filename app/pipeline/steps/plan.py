@@ -18,6 +18,9 @@ from app.pipeline.steps.turns import TurnWindow
 from app.pipeline.types import CameraModel, Journey, StageReport
 
 
+NORMAL_Z75 = 0.674  # the 75th percentile of a standard normal
+
+
 @dataclass(frozen=True, kw_only=True)
 class JourneyPlan:
     """``calib_windows`` empty: nothing to self-calibrate on (no turn), or a known camera is
@@ -95,7 +98,7 @@ def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | 
     moving = speed[speed > min_speed_mps]
     if not moving.size:
         return None
-    spread = 0.674 * np.sqrt(2.0) * (noise_m or 0.0) / float(np.median(dt))
+    spread = NORMAL_Z75 * np.sqrt(2.0) * (noise_m or 0.0) / float(np.median(dt))
     return float(max(np.percentile(moving, 75) - spread, 0.0) * frame_s)
 
 
