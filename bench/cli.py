@@ -98,10 +98,11 @@ def run_uncertainty_command(args) -> int:
     records = _runs("uncertainty", args.jsonl)
     c = PipelineConfig()
     fitted, table = report(records, Knobs(c.sign_georef_floor_m, c.sign_georef_noise_gain,
-                                          c.sign_georef_bias_ratio))
+                                          c.sign_georef_bias_ratio, c.sign_georef_bias_quad_per_m))
     print(table)
     print(f"\nfitted on the tuning half: --set sign_georef_floor_m={fitted.floor_m:.2f} "
-          f"--set sign_georef_bias_ratio={fitted.bias_ratio:.2f}")
+          f"--set sign_georef_bias_ratio={fitted.bias_ratio:.2f} "
+          f"--set sign_georef_bias_quad_per_m={fitted.bias_quad_per_m:.2f}")
     return 0
 
 
@@ -329,7 +330,8 @@ def add_parsers(sub) -> None:
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "
-        "sign_georef_floor_m and sign_georef_bias_ratio on its tuning half so that 95 %% of "
+        "sign_georef_floor_m, sign_georef_bias_ratio and sign_georef_bias_quad_per_m on its "
+        "tuning half so that 95 %% of "
         "signs lie inside their 95 %% radius for OXTS-like and phone-like GPS alike; prints the "
         "coverage per half with the current and the fitted knobs.")
     u.add_argument("jsonl", type=Path, nargs="+",

@@ -6,15 +6,16 @@ triangulation's (2, 2) block, the averaged GPS noise, the floor weight and the a
 (``app.pipeline.geometry.uncertainty.GeorefTerms``). That is enough to recompute every sign's 95 % radius
 for any knob values without running the pipeline again.
 
-``fit`` picks ``sign_georef_floor_m`` and ``sign_georef_bias_ratio`` (the gain on the averaged
-noise stays 1: that term is the alignment's own statistics) so that, on the tuning half, the
-share of all signs inside their radius is nearest 95 %. A floor alone cannot do it, as
-OXTS-like and phone-like GPS errors differ tenfold; the ratio follows the receiver. Two knobs
-cannot make each kind honest on its own: on the corpus of 2026-11-25 the OXTS-like signs come
-out over-covered and the phone-like ones under-covered (their reconstructions break more often
-than their alignment residual shows), which a third term would have to model; asking for each
-kind at 95 % instead drove the ratio to 2 and the check half to 100 %. The report gives each
-GPS kind apart.
+``fit`` picks ``sign_georef_floor_m``, ``sign_georef_bias_ratio`` and
+``sign_georef_bias_quad_per_m`` (the gain on the averaged noise stays 1: that term is the
+alignment's own statistics) so that, on the tuning half, the share of all signs inside their
+radius is nearest 95 %, for each GPS kind and overall. A floor alone cannot do it, as OXTS-like and
+phone-like GPS errors differ tenfold; the ratio follows the receiver. Floor and ratio alone left
+the OXTS-like signs over-covered and the phone-like ones under-covered on every corpus run
+(2026-11-25 to 27: the phone's common error grows faster than its residual), which the square
+term models; held out a journey at a time on the tuning half of 2026-11-27, the three knobs
+kept both kinds near 95 % and the two did not (``bench/results/2026-11-27-uncertainty.md``).
+The report gives each GPS kind apart.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ class Knobs:
     floor_m: float
     noise_gain: float = 1.0
     bias_ratio: float = 0.0
+    bias_quad_per_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -48,7 +50,8 @@ class SignTerms:
     georef: GeorefTerms
 
     def r95_m(self, knobs: Knobs) -> float:
-        h = self.georef.horizontal_m2(knobs.floor_m, knobs.noise_gain, knobs.bias_ratio)
+        h = self.georef.horizontal_m2(knobs.floor_m, knobs.noise_gain, knobs.bias_ratio,
+                                      knobs.bias_quad_per_m)
         return horizontal_radius_m(self.cov_tri_h_m2 + h * np.eye(2))
 
 
@@ -73,8 +76,10 @@ _Z2 = np.random.default_rng(0).standard_normal((4000, 2)) ** 2
 
 
 class _Signs:
-    """The terms of a list of signs as arrays, read once: a fit evaluates hundreds of knob values
-    on the same signs, and per-sign Python (an eigendecomposition each) dominated it."""
+    """The terms of a list of signs as arrays, read once: a fit evaluates thousands of knob values
+    on the same signs. The Gaussian's mass within a sign's error only falls as the added variance
+    ``h`` grows, so each sign is inside its radius exactly when ``h`` reaches a threshold of its
+    own, found once by bisection; a knob value then costs a comparison per sign."""
 
     def __init__(self, signs: list[SignTerms]):
         # Adding h * I to the triangulation block adds h to both of its eigenvalues.
@@ -82,16 +87,35 @@ class _Signs:
                                  for s in signs]).reshape(-1, 2)                     # (S, 2)
         self.noise = np.array([s.georef.averaged_noise_m2 for s in signs])         # (S,)
         self.floor_w = np.array([s.georef.floor_weight for s in signs])            # (S,)
-        self.residual = np.array([s.georef.residual_m2 for s in signs])            # (S,)
+        residual = np.array([s.georef.residual_m2 for s in signs])                 # (S,)
+        self.rms = np.sqrt(np.divide(residual, self.floor_w, out=np.zeros_like(residual),
+                                     where=self.floor_w > 0))                      # (S,)
         self.err2 = np.array([s.h_err_m**2 for s in signs])                        # (S,)
+        self.h_inside = self._threshold_m2()                                       # (S,)
 
-    def inside(self, knobs: Knobs) -> np.ndarray:
-        """(S,) bool: each sign's true position is inside its 95 % radius."""
-        h = (knobs.noise_gain * self.noise + self.floor_w * knobs.floor_m**2
-             + knobs.bias_ratio**2 * self.residual)
+    def _inside_at(self, h: np.ndarray) -> np.ndarray:
         lam = np.clip(self.lam_tri + h[:, None], 1e-12, None)
         mass_within_err = np.mean(_Z2 @ lam.T <= self.err2[None, :], axis=0)
         return mass_within_err <= TARGET
+
+    def _threshold_m2(self) -> np.ndarray:
+        """(S,) the smallest added variance that puts each sign inside its radius. At
+        ``h = err^2 / 0.1`` every sign is inside (z1^2 + z2^2 <= 0.1 has 5 % of the mass)."""
+        lo = np.zeros_like(self.err2)
+        hi = self.err2 / 0.1 + 1e-12
+        inside_at_zero = self._inside_at(lo)
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            ok = self._inside_at(mid)
+            hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
+        return np.where(inside_at_zero, 0.0, hi)
+
+    def inside(self, knobs: Knobs) -> np.ndarray:
+        """(S,) bool: each sign's true position is inside its 95 % radius (the variance as
+        ``GeorefTerms.horizontal_m2`` adds it)."""
+        common = knobs.bias_ratio * self.rms + knobs.bias_quad_per_m * self.rms**2
+        h = knobs.noise_gain * self.noise + self.floor_w * (knobs.floor_m**2 + common**2)
+        return h >= self.h_inside
 
 
 def coverage(signs: list[SignTerms], knobs: Knobs) -> tuple[float | None, int]:
@@ -102,21 +126,28 @@ def coverage(signs: list[SignTerms], knobs: Knobs) -> tuple[float | None, int]:
 
 
 def fit(signs: list[SignTerms], floors_m=np.arange(0.0, 0.61, 0.05),
-        ratios=np.arange(0.0, 2.51, 0.1)) -> Knobs:
-    """The knobs that bring the coverage on ``signs`` nearest to 95 %; among equals, those that
-    bring each GPS kind nearest to 95 %, then the smallest radii (a grid: the coverage is a step
-    function of the knobs)."""
+        ratios=np.arange(0.0, 2.51, 0.1), quads_per_m=np.arange(0.0, 0.61, 0.05)) -> Knobs:
+    """The knobs that bring the coverage of each GPS kind and of all ``signs`` nearest to 95 %
+    (the sum of squared misses); among equals, the smallest radii (a grid: the coverage is a step
+    function of the knobs). Overall first and kinds second let an exact 95 % overall made of
+    100 % and 90 % beat an honest 94.7 % and 95.2 %."""
     arrays = _Signs(signs)
     kinds = np.array([s.gps for s in signs])
     groups = [m for kind in GPS_KINDS if (m := kinds == kind).any()]
 
-    def cost(k: Knobs) -> tuple[float, float, float]:
+    def cost(k: Knobs) -> tuple[float, float]:
         inside = arrays.inside(k)
         per_kind = sum((float(np.mean(inside[m])) - TARGET) ** 2 for m in groups)
-        return (round(abs(float(np.mean(inside)) - TARGET), 4), round(per_kind, 6),
-                k.floor_m + k.bias_ratio)
-    candidates = [Knobs(float(f), 1.0, float(r)) for f, r in itertools.product(floors_m, ratios)]
+        overall = (float(np.mean(inside)) - TARGET) ** 2
+        return (round(per_kind + overall, 5), k.floor_m + k.bias_ratio + k.bias_quad_per_m)
+    candidates = [Knobs(float(f), 1.0, float(r), float(q))
+                  for f, r, q in itertools.product(floors_m, ratios, quads_per_m)]
     return min(candidates, key=cost)
+
+
+def describe(k: Knobs) -> str:
+    return (f"floor {k.floor_m:.2f} m, ratio {k.bias_ratio:.2f}, "
+            f"square {k.bias_quad_per_m:.2f} /m")
 
 
 def report(records: list[dict], current: Knobs) -> tuple[Knobs, str]:
@@ -133,7 +164,6 @@ def report(records: list[dict], current: Knobs) -> tuple[Knobs, str]:
                 share, n = coverage(chosen, knobs)
                 cells.append("–" if share is None else f"{100 * share:.1f} % of {n}")
             rows.append(f"| {half} | {kind} | {cells[0]} | {cells[1]} |")
-    head = (f"| half | GPS | inside r95, current (floor {current.floor_m:.2f} m, ratio "
-            f"{current.bias_ratio:.2f}) | inside r95, fitted (floor {fitted.floor_m:.2f} m, "
-            f"ratio {fitted.bias_ratio:.2f}) |\n| --- | --- | --- | --- |")
+    head = (f"| half | GPS | inside r95, current ({describe(current)}) | inside r95, fitted "
+            f"({describe(fitted)}) |\n| --- | --- | --- | --- |")
     return fitted, "\n".join([head, *rows])

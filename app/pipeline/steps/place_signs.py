@@ -74,7 +74,8 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
         cov_enu = cov_tri + georef.cov_m2(georef_floor_m(config.sign_georef_floor_m,
                                                          journey.gps_accuracy_m),
                                           config.sign_georef_noise_gain,
-                                          config.sign_georef_bias_ratio)
+                                          config.sign_georef_bias_ratio,
+                                          config.sign_georef_bias_quad_per_m)
         T = np.concatenate([p.T_world_cam for p in placed])
         frame_ids = [journey.frames[i].frame_id for p in placed for i in p.frame_idx]
         p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
