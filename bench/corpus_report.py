@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
+from scipy.stats import bootstrap
 
 from bench.metrics import true_distortion_error_px
 from bench.plots import save_figure, plt
@@ -149,6 +150,11 @@ def sign_error_stats(signed: list[dict]) -> dict:
             spanning.append(pts)
     pooled, pooled_se = pooled_slope(spanning)
     rel = [e["rel_m"] for e in errs if e.get("rel_m") is not None and np.isfinite(e["rel_m"])]
+    per_journey = [list((r.get("sign_errors") or {}).values()) for r in signed]
+    rel_by_journey = [[e["rel_m"] for e in js if e.get("rel_m") is not None
+                       and np.isfinite(e["rel_m"])] for js in per_journey]
+    covered_by_journey = [[float(e["within_r95"]) for e in js if e.get("within_r95") is not None]
+                          for js in per_journey]
     gps = [r["params"]["gps_white_sigma_m"] for r in signed
            if r.get("params", {}).get("gps_white_sigma_m") is not None]
     return {"n_sign_errors": len(errs), "n_journeys": len(signed),
@@ -156,10 +162,30 @@ def sign_error_stats(signed: list[dict]) -> dict:
             "gps_white_median_m": quantile(gps, 50),
             "sign_abs_median_m": quantile((e.get("abs_m") for e in errs), 50),
             "sign_abs_p90_m": quantile((e.get("abs_m") for e in errs), 90),
+            "rel_mean_ci90_m": journey_interval(rel_by_journey),
             "r95_coverage": (sum(covered) / len(covered)) if covered else None,
+            "r95_coverage_ci90": journey_interval(covered_by_journey),
             "n_covered_of": len(covered),
             "slope_m_per_100m": quantile(slopes, 50),
             "slope_pooled_m_per_100m": pooled, "slope_pooled_se_m_per_100m": pooled_se}
+
+
+def journey_interval(values_by_journey: list[list[float]], level: float = 0.9
+                     ) -> list[float] | None:
+    """The ``level`` percentile interval of the mean of all values, resampling journeys (not
+    values): a journey's signs share its GPS error and its reconstruction, so with ten journeys a
+    half one journey moves a share by ten points, which a per-sign interval would hide. None with
+    fewer than two journeys that have values."""
+    groups = [np.asarray(v, float) for v in values_by_journey if len(v)]
+    if len(groups) < 2:
+        return None
+
+    def pooled_mean(idx: np.ndarray) -> float:
+        return float(np.mean(np.concatenate([groups[i] for i in idx.astype(int)])))
+
+    res = bootstrap((np.arange(len(groups)),), pooled_mean, vectorized=False, n_resamples=2000,
+                    confidence_level=level, method="percentile", random_state=0)
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
 
 
 def pooled_slope(journeys: list[np.ndarray]) -> tuple[float | None, float | None]:
@@ -299,8 +325,9 @@ def summary_rows(report: dict) -> list[list[str]]:
                        if x["signs_mappable"] else "") for x in s)],
                  ["false signs / duplicates (> 3 m from any true sign / a second for one)",
                   *(f"{x['signs_false']} / {x['signs_duplicate']}" for x in s)],
-                 ["relative (per-frame camera) error mean (m)",
-                  *(fmt(x.get("rel_mean_m"), 3) for x in s)],
+                 ["relative (per-frame camera) error mean (m) [90 % interval over journeys]",
+                  *(fmt(x.get("rel_mean_m"), 3) + _interval(x.get("rel_mean_ci90_m"), 1.0, 3)
+                    for x in s)],
                  ["median of journeys' abs median sign error (m)",
                   *(fmt(x["abs_median_m"], 3) for x in s)],
                  ["median of journeys' median facing error (deg)",
@@ -308,8 +335,9 @@ def summary_rows(report: dict) -> list[list[str]]:
                  ["all signs: abs error median / p90 (m)",
                   *(f"{fmt(x.get('sign_abs_median_m'), 3)} / {fmt(x.get('sign_abs_p90_m'), 3)}"
                     for x in s)],
-                 ["true position inside the 95 % horizontal radius",
+                 ["true position inside the 95 % horizontal radius [90 % interval over journeys]",
                   *(f"{fmt(100 * x['r95_coverage'], 1)} % of {x['n_covered_of']}"
+                    + _interval(x.get("r95_coverage_ci90"), 100.0, 1)
                     if x.get("r95_coverage") is not None else "–" for x in s)],
                  ["median of journeys' abs error slope (m per 100 m)",
                   *(fmt(x.get("slope_m_per_100m"), 3) for x in s)]]
@@ -321,14 +349,19 @@ def summary_rows(report: dict) -> list[list[str]]:
                       *(f"{fmt(y.get('sign_abs_median_m'), 3)} / {fmt(y.get('sign_abs_p90_m'), 3)}"
                         f"; {fmt(y.get('gps_white_median_m'), 2)}" for y in g)],
                      [f"{label}: rel mean (m); inside 95 % radius; slope (m/100 m)",
-                      *(f"{fmt(y.get('rel_mean_m'), 3)}; "
+                      *(f"{fmt(y.get('rel_mean_m'), 3)}{_interval(y.get('rel_mean_ci90_m'), 1.0, 3)}; "
                         + (f"{fmt(100 * y['r95_coverage'], 1)} % of {y['n_covered_of']}"
+                           + _interval(y.get("r95_coverage_ci90"), 100.0, 1)
                            if y.get("r95_coverage") is not None else "–")
                         + f"; {fmt(y.get('slope_m_per_100m'), 3)}" for y in g)],
                      [f"{label}: slope pooled within journeys ± s.e. (m/100 m)",
                       *(f"{fmt(y.get('slope_pooled_m_per_100m'), 3)} ± "
                         f"{fmt(y.get('slope_pooled_se_m_per_100m'), 3)}" for y in g)]]
     return rows
+
+
+def _interval(ci: list[float] | None, scale: float, digits: int) -> str:
+    return "" if not ci else f" [{fmt(scale * ci[0], digits)}-{fmt(scale * ci[1], digits)}]"
 
 
 def table_failures(report: dict) -> str:

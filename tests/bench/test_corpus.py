@@ -146,6 +146,26 @@ def test_sign_rows_only_on_full_runs():
     assert "signs placed" not in cr.table_summary(cr.build_report({}, _records()))
 
 
+def test_coverage_and_relative_error_come_with_an_interval_over_journeys():
+    """Signs of one journey share its errors: the interval resamples journeys, so ten signs of
+    one journey all outside widen it as one journey would, not as ten independent signs."""
+    def journey(inside: list[bool], rel_m: float) -> dict:
+        return {"status": "accepted", "signs": {"n_signs": len(inside)},
+                "params": {"gps_white_sigma_m": 0.25, "gps_bias_sigma_m": 0.1},
+                "sign_errors": {str(i): {"within_r95": v, "rel_m": rel_m, "abs_m": 0.2}
+                                for i, v in enumerate(inside)}}
+
+    stats = cr.sign_error_stats([journey([True] * 10, 0.1)] * 8 + [journey([False] * 10, 0.9)] * 2)
+    assert stats["r95_coverage"] == pytest.approx(0.8)
+    low, high = stats["r95_coverage_ci90"]
+    assert low <= 0.65 and 0.9 <= high <= 1.0  # a journey moves the share by ten points
+    low, high = stats["rel_mean_ci90_m"]
+    assert low < 0.26 < high
+    same = cr.sign_error_stats([journey([True, False], 0.2)] * 5)
+    assert same["r95_coverage_ci90"] == pytest.approx([0.5, 0.5])
+    assert cr.sign_error_stats([journey([True], 0.2)])["r95_coverage_ci90"] is None
+
+
 def test_param_comparison():
     p = cr.param_comparison(_records())
     assert p["numeric"]["fps"]["tuning"] == {"failed": 5.0, "accepted": 10.0}
