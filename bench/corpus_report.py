@@ -139,8 +139,14 @@ def sign_error_stats(signed: list[dict]) -> dict:
     percentile, the share inside its own 95 % horizontal radius, and the median over journeys of
     the slope of absolute error against distance along the journey (m per 100 m), and that slope
     pooled within journeys with its standard error (``pooled_slope``)."""
-    errs = [e for r in signed for e in (r.get("sign_errors") or {}).values()]
-    covered = [e["within_r95"] for e in errs if e.get("within_r95") is not None]
+    per_journey = [list((r.get("sign_errors") or {}).values()) for r in signed]
+    errs = [e for js in per_journey for e in js]
+    rel_by_journey = [[e["rel_m"] for e in js if e.get("rel_m") is not None
+                       and np.isfinite(e["rel_m"])] for js in per_journey]
+    covered_by_journey = [[float(e["within_r95"]) for e in js if e.get("within_r95") is not None]
+                          for js in per_journey]
+    rel = [v for js in rel_by_journey for v in js]
+    covered = [v for js in covered_by_journey for v in js]
     slopes, spanning = [], []  # spanning: each such journey's (s_m, abs_m) points
     for r in signed:
         pts = np.array([(e["s_m"], e["abs_m"]) for e in (r.get("sign_errors") or {}).values()
@@ -149,12 +155,6 @@ def sign_error_stats(signed: list[dict]) -> dict:
             slopes.append(100.0 * np.polyfit(pts[:, 0], pts[:, 1], 1)[0])
             spanning.append(pts)
     pooled, pooled_se = pooled_slope(spanning)
-    rel = [e["rel_m"] for e in errs if e.get("rel_m") is not None and np.isfinite(e["rel_m"])]
-    per_journey = [list((r.get("sign_errors") or {}).values()) for r in signed]
-    rel_by_journey = [[e["rel_m"] for e in js if e.get("rel_m") is not None
-                       and np.isfinite(e["rel_m"])] for js in per_journey]
-    covered_by_journey = [[float(e["within_r95"]) for e in js if e.get("within_r95") is not None]
-                          for js in per_journey]
     gps = [r["params"]["gps_white_sigma_m"] for r in signed
            if r.get("params", {}).get("gps_white_sigma_m") is not None]
     return {"n_sign_errors": len(errs), "n_journeys": len(signed),

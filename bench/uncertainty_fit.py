@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline.geometry.uncertainty import GeorefTerms, horizontal_radius_m
+from app.pipeline.geometry.uncertainty import (GeorefTerms, georef_horizontal_m2,
+                                               horizontal_radius_m)
 from bench.corpus_report import GPS_KINDS, gps_kind
 
 TARGET = 0.95
@@ -87,9 +88,7 @@ class _Signs:
                                  for s in signs]).reshape(-1, 2)                     # (S, 2)
         self.noise = np.array([s.georef.averaged_noise_m2 for s in signs])         # (S,)
         self.floor_w = np.array([s.georef.floor_weight for s in signs])            # (S,)
-        residual = np.array([s.georef.residual_m2 for s in signs])                 # (S,)
-        self.rms = np.sqrt(np.divide(residual, self.floor_w, out=np.zeros_like(residual),
-                                     where=self.floor_w > 0))                      # (S,)
+        self.residual = np.array([s.georef.residual_m2 for s in signs])            # (S,)
         self.err2 = np.array([s.h_err_m**2 for s in signs])                        # (S,)
         self.h_inside = self._threshold_m2()                                       # (S,)
 
@@ -112,9 +111,9 @@ class _Signs:
 
     def inside(self, knobs: Knobs) -> np.ndarray:
         """(S,) bool: each sign's true position is inside its 95 % radius (the variance as
-        ``GeorefTerms.horizontal_m2`` adds it)."""
-        common = knobs.bias_ratio * self.rms + knobs.bias_quad_per_m * self.rms**2
-        h = knobs.noise_gain * self.noise + self.floor_w * (knobs.floor_m**2 + common**2)
+        ``georef_horizontal_m2`` adds it, as the pipeline does)."""
+        h = georef_horizontal_m2(self.noise, self.floor_w, self.residual, knobs.floor_m,
+                                 knobs.noise_gain, knobs.bias_ratio, knobs.bias_quad_per_m)
         return h >= self.h_inside
 
 

@@ -53,19 +53,32 @@ class GeorefTerms:
 
     def horizontal_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0,
                       bias_quad_per_m: float = 0.0) -> float:
-        """Variance per horizontal axis (m^2) these terms add, weighed by the knobs. The common
-        error of a pass with residual ``r`` is ``bias_ratio * r + bias_quad_per_m * r^2``; over
-        several passes ``r`` is their weighted RMS residual (exact when they agree)."""
-        rms_m = np.sqrt(self.residual_m2 / self.floor_weight) if self.floor_weight > 0 else 0.0
-        common_m = bias_ratio * rms_m + bias_quad_per_m * rms_m**2
-        return float(noise_gain * self.averaged_noise_m2
-                     + self.floor_weight * (floor_m**2 + common_m**2))
+        """Variance per horizontal axis (m^2) these terms add, weighed by the knobs
+        (``georef_horizontal_m2``)."""
+        return float(georef_horizontal_m2(self.averaged_noise_m2, self.floor_weight,
+                                          self.residual_m2, floor_m, noise_gain, bias_ratio,
+                                          bias_quad_per_m))
 
     def cov_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0,
                bias_quad_per_m: float = 0.0) -> np.ndarray:
         """(3, 3) ENU covariance; altitude counts twice the horizontal error."""
         h = self.horizontal_m2(floor_m, noise_gain, bias_ratio, bias_quad_per_m)
         return np.diag([h, h, 4.0 * h])
+
+
+def georef_horizontal_m2(averaged_noise_m2, floor_weight, residual_m2, floor_m: float,
+                         noise_gain: float, bias_ratio: float, bias_quad_per_m: float):
+    """Variance per horizontal axis (m^2) of ``GeorefTerms`` fields (scalars, or arrays of many
+    signs' terms, as the knob fit in ``bench/uncertainty_fit.py`` passes them) weighed by the
+    knobs. The common error of a pass with residual ``r`` is ``bias_ratio * r + bias_quad_per_m
+    * r^2``; over several passes ``r`` is their weighted RMS residual (exact when they agree)."""
+    floor_weight = np.asarray(floor_weight, float)
+    residual_m2 = np.asarray(residual_m2, float)
+    rms_m = np.sqrt(np.divide(residual_m2, floor_weight, out=np.zeros_like(residual_m2),
+                              where=floor_weight > 0))
+    common_m = bias_ratio * rms_m + bias_quad_per_m * rms_m**2
+    return noise_gain * np.asarray(averaged_noise_m2, float) + floor_weight * (floor_m**2
+                                                                              + common_m**2)
 
 
 # A receiver's stated accuracy is the radius holding 68 % of its fixes; for an isotropic 2-D
