@@ -219,6 +219,10 @@ class PipelineConfig(BaseModel):
         True, description="align the reconstruction to frame positions from a smoothing spline "
         "through the GPS fixes (its smoothing chosen by cross-validation) instead of straight "
         "lines between fixes, which pass through every fix's noise and cut curves' corners")
+    gps_dropout_gap_factor: float = Field(
+        1.5, description="frames between two fixes more than this many times the usual fix "
+        "interval apart (a dropout) are not used to align, nor to judge, a reconstruction: "
+        "interpolation across a dropout in a curve cuts the corner by metres (0: use every frame)")
     # "full": each window's (or chain's, ``alignment_joint``) alignment; "short": again over the
     # frames around each sign, as the paper did against ORB-SLAM drift. Full measured better on
     # loop-300 (abs median 0.314 m against 0.727 m, bench 2026-11-23).
@@ -277,7 +281,7 @@ class PipelineConfig(BaseModel):
     # 0.3, square 0.3: 92.4 % / 95.4 % there; which to refit was decided before the check run).
     # bench/results/2026-11-27-uncertainty.md, -ego-window.md.
     sign_georef_floor_m: float = Field(
-        0.10, description="GPS error per horizontal axis that a window alignment cannot average "
+        0.15, description="GPS error per horizontal axis that a window alignment cannot average "
                          "out (bias, multipath), added to every sign's covariance; a receiver's "
                          "stated accuracy raises it")
     sign_georef_noise_gain: float = Field(
@@ -287,7 +291,7 @@ class PipelineConfig(BaseModel):
         0.0, description="GPS error common to a window (bias, multipath) per horizontal axis, as "
                          "a share of the window alignment's residual rms")
     sign_georef_bias_quad_per_m: float = Field(
-        0.45, description="...plus this many times the residual rms squared (1/m): the common "
+        0.40, description="...plus this many times the residual rms squared (1/m): the common "
                          "error of a noisy receiver grows faster than its scatter")
 
     reuse_known_calibration: bool = Field(

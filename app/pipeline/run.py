@@ -254,6 +254,10 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
     with journal.stage("align") as entry, clock.stage("align"):
         # A window that cannot be aligned (the car stood still through it) is dropped.
         dropped: list[str] = []
+        trusted = gps_trusted(journey, config)
+        if trusted is not None and not trusted.all():
+            dropped.append(f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
+                           "positions neither align nor judge a window")
         aligned = align.align_windows(
             poses, xyz_align, joint=config.alignment_joint,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
@@ -262,7 +266,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                                    if config.alignment_unlink_broken else None),
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
-            xyz_check=xyz_gps if config.gps_smoothing else None)
+            xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted)
         entry.take(align.report(len(poses), aligned, dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
@@ -283,6 +287,16 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_align[traj_idx],
                          trajectory_T_world_cam=traj_T,
                          origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports)
+
+
+def gps_trusted(journey: Journey, config: PipelineConfig) -> np.ndarray | None:
+    """(N,) bool: the frames whose GPS position is pinned by fixes near them
+    (``gps_track.in_dropout``); None when the journey kept no fixes."""
+    if journey.gps_fixes is None:
+        return None
+    t_frame_s = np.array([f.timestamp_s for f in journey.frames])
+    return ~gps_track.in_dropout(t_frame_s, journey.gps_fixes.timestamp_s,
+                                 config.gps_dropout_gap_factor)
 
 
 def frame_positions(journey: Journey, origin: geodesy.LocalFrame,

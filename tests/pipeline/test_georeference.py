@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from app.pipeline.geometry.gps_track import in_dropout
 from app.pipeline.geometry.similarity import Sim3
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.steps.sign_tracks import SignTrack
@@ -275,6 +276,39 @@ def test_a_broken_window_is_judged_against_the_fixes_as_read_when_aligned_to_smo
     judged = align_windows(poses, xyz_hiding, max_independent_rms_m=limit_m, xyz_check=xyz_gps)
     assert fooled[1].info["joint_windows"] == 4
     assert "joint_windows" not in judged[1].info and judged[2].info["joint_windows"] == 2
+
+
+def test_a_gps_dropout_in_a_bend_neither_pulls_nor_breaks_a_right_window():
+    # 2 Hz fixes with a 4 s dropout in the 90 deg bend: the straight line across it cuts the
+    # corner by ~3 m. Judged by those positions, a perfect window looks broken (corpus c0054 lost
+    # 8 signs so); fitted and judged by the frames near fixes, it is as right as it is.
+    rng = np.random.default_rng(11)
+    T_world_cam = _level_poses(_turning_track())
+    xyz_true = T_world_cam[:, :3, 3]
+    t_frame_s = np.arange(len(xyz_true)) / FPS
+    t_fix_s = np.arange(0.0, t_frame_s[-1] + 0.01, 0.5)
+    t_fix_s = t_fix_s[(t_fix_s < 13.0) | (t_fix_s > 17.0)]
+    xyz_fix = np.column_stack([np.interp(t_fix_s, t_frame_s, xyz_true[:, k]) for k in range(3)])
+    xyz_fix += rng.normal(0.0, 0.05, xyz_fix.shape)
+    xyz_gps = np.column_stack([np.interp(t_frame_s, t_fix_s, xyz_fix[:, k]) for k in range(3)])
+    gap = in_dropout(t_frame_s, t_fix_s, max_gap_factor=1.5)
+    assert np.array_equal(np.flatnonzero(gap), np.arange(125, 175))  # fixes at 12.5, 17.5 s
+    # Without the last fix (27.5 s), frames up to one fix interval past 27.0 s stay pinned.
+    tail = in_dropout(t_frame_s, t_fix_s[:-1], max_gap_factor=1.5)
+    assert not tail[270:275].any() and tail[276:].all()
+    poses = _windows(T_world_cam, CHAIN, rng)
+    as_read = align_window(poses[2], xyz_gps)
+    masked = align_window(poses[2], xyz_gps, ~gap)
+    assert as_read.info["rms_m"] > 1.0 > 0.2 > masked.info["rms_m"]
+    assert _centre_error_m([masked], T_world_cam) < 0.1 < 0.5 < _centre_error_m([as_read],
+                                                                                 T_world_cam)
+    limit_m = 1.0
+    judged = align_windows(poses, xyz_gps, max_independent_rms_m=limit_m, xyz_check=xyz_gps)
+    trusted = align_windows(poses, xyz_gps, max_independent_rms_m=limit_m, xyz_check=xyz_gps,
+                            trusted=~gap)
+    assert "joint_windows" not in judged[2].info
+    assert trusted[2].info["joint_windows"] == 4 and trusted[2].info["rms_m"] < 0.2
+    assert _centre_error_m(trusted, T_world_cam) < 0.1
 
 
 def test_local_alignment_takes_out_a_scale_error_the_window_alignment_leaves_near_a_sign():

@@ -40,11 +40,33 @@ class AlignedWindow:
     T_world_cam: np.ndarray  # (K, 4, 4) aligned poses of poses.frame_idx
 
 
-def align_window(poses: WindowPoses, xyz_gps: np.ndarray) -> AlignedWindow:
-    """Full alignment of one window; ``xyz_gps`` (N, 3) is the whole journey's metric GPS."""
-    centres = poses.T_model_cam[:, :3, 3]
-    sim, info = align_trajectory(centres, xyz_gps[poses.frame_idx], poses.T_model_cam[:, :3, :3])
+def align_window(poses: WindowPoses, xyz_gps: np.ndarray,
+                 trusted: np.ndarray | None = None) -> AlignedWindow:
+    """Full alignment of one window; ``xyz_gps`` (N, 3) is the whole journey's metric GPS,
+    ``trusted`` (N,) bool the frames whose GPS position may be used (``fit_rows``)."""
+    use = fit_rows(poses.frame_idx, trusted)
+    centres = poses.T_model_cam[use, :3, 3]
+    sim, info = align_trajectory(centres, xyz_gps[poses.frame_idx[use]],
+                                 poses.T_model_cam[use, :3, :3])
     return AlignedWindow(poses, sim, info, sim.apply_poses(poses.T_model_cam))
+
+
+# A window needs this many frames, and this share of its own, with trusted GPS positions to be
+# aligned by those alone; else by all its frames, as before the dropout mask.
+MIN_TRUSTED_FRAMES = 6
+MIN_TRUSTED_SHARE = 1 / 3
+
+
+def fit_rows(frame_idx: np.ndarray, trusted: np.ndarray | None) -> np.ndarray:
+    """(K,) bool over a window's frames ``frame_idx``: those whose GPS position aligns and judges
+    it. ``trusted`` (N,) bool over the journey's frames (None: all; ``gps_track.in_dropout``
+    marks the rest)."""
+    if trusted is None:
+        return np.ones(len(frame_idx), bool)
+    use = np.asarray(trusted, bool)[frame_idx]
+    if use.sum() < max(MIN_TRUSTED_FRAMES, MIN_TRUSTED_SHARE * len(frame_idx)):
+        return np.ones(len(frame_idx), bool)
+    return use
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -72,7 +94,8 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
                   sigmas: JointSigmas = JointSigmas(), min_shared_frames: int = 2,
                   max_independent_rms_m: float | None = None,
                   on_dropped: Callable[[WindowPoses, str], None] | None = None,
-                  xyz_check: np.ndarray | None = None) -> list[AlignedWindow]:
+                  xyz_check: np.ndarray | None = None,
+                  trusted: np.ndarray | None = None) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
 
     Each window is first aligned on its own (``align_window``, which handles the straight-road
@@ -88,36 +111,44 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     window that lay 1.32 m off the fixes, just past c0016's limit, lay under it against the
     smoothed positions, was linked, and dragged its chain 11.6 m off); the windows returned then
     report their residual (``info["rms_m"]``) against ``xyz_check`` too (``_with_residuals_to``).
+    ``trusted`` (N,) bool: the frames whose GPS positions fit and judge the windows (``fit_rows``:
+    a dropout's interpolated positions neither pull a window nor make it look broken).
     """
     aligned = []
     for p in poses:
         try:
-            aligned.append(align_window(p, xyz_gps))
+            aligned.append(align_window(p, xyz_gps, trusted))
         except ValueError as exc:
             log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
             if on_dropped is not None:
                 on_dropped(p, str(exc))
     if joint:
-        checked = aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check)
+        checked = aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check,
+                                                                        trusted)
         linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
                     for w in checked]
         for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
                                                  linkable)):
             joint_windows = ([aligned[group[0]]] if len(group) == 1 else
-                             _align_group([aligned[k] for k in group], xyz_gps, sigmas))
+                             _align_group([aligned[k] for k in group], xyz_gps, sigmas,
+                                          trusted))
             for k, window in zip(group, joint_windows):
                 aligned[k] = replace(window, info={**window.info, "group": g})
-    return aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check)
+    return aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check, trusted)
 
 
-def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray) -> list[AlignedWindow]:
+def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray,
+                       trusted: np.ndarray | None = None) -> list[AlignedWindow]:
     """The windows with ``info["rms_m"]`` measured against the positions ``xyz`` (N, 3) instead
     of those they were aligned to (kept as ``rms_fit_m``). Aligned to smoothed GPS positions, a
     window's residual no longer holds the GPS's white noise, while the broken-reconstruction
     check and the sign uncertainty were chosen on residuals to the fixes as read."""
-    return [replace(w, info={**w.info, "rms_fit_m": w.info["rms_m"],
-                             "rms_m": _centre_rms_m(w.T_world_cam, xyz[w.poses.frame_idx])})
-            for w in aligned]
+    out = []
+    for w in aligned:
+        use = fit_rows(w.poses.frame_idx, trusted)
+        out.append(replace(w, info={**w.info, "rms_fit_m": w.info["rms_m"], "rms_m": _centre_rms_m(
+            w.T_world_cam[use], xyz[w.poses.frame_idx[use]])}))
+    return out
 
 
 def _centre_rms_m(T_world_cam: np.ndarray, xyz: np.ndarray) -> float:
@@ -218,14 +249,17 @@ class _JointProblem:
     same keypoints (``scale_ratio``).
     """
 
-    def __init__(self, windows: list[AlignedWindow], xyz_gps: np.ndarray, sigmas: JointSigmas):
+    def __init__(self, windows: list[AlignedWindow], xyz_gps: np.ndarray, sigmas: JointSigmas,
+                 trusted: np.ndarray | None = None):
         self.windows = windows
         self.sigmas = sigmas
         self.centres_model = [w.poses.T_model_cam[:, :3, 3] for w in windows]  # (K,3) each
         self.R_model_cam = [w.poses.T_model_cam[:, :3, :3] for w in windows]  # (K,3,3) each
         self.xyz_gps = [xyz_gps[w.poses.frame_idx] for w in windows]  # (K,3) each
         counts = np.bincount(np.concatenate([w.poses.frame_idx for w in windows]))
-        self.gps_weight = [1.0 / (sigmas.gps_m * np.sqrt(counts[w.poses.frame_idx]))
+        # A frame whose GPS position is not trusted (``fit_rows``) weighs nothing.
+        self.gps_weight = [fit_rows(w.poses.frame_idx, trusted)
+                           / (sigmas.gps_m * np.sqrt(counts[w.poses.frame_idx]))
                            for w in windows]  # (K,) each
         self.pivot_enu = [w.T_world_cam[:, :3, 3].mean(0) for w in windows]
         self.pairs = [(i, j, *_shared_rows(windows[i].poses, windows[j].poses))
@@ -302,11 +336,11 @@ def _line_direction(xyz: np.ndarray) -> np.ndarray:
 
 
 def _align_group(windows: list[AlignedWindow], xyz_gps: np.ndarray,
-                 sigmas: JointSigmas) -> list[AlignedWindow]:
+                 sigmas: JointSigmas, trusted: np.ndarray | None = None) -> list[AlignedWindow]:
     """Joint alignment of linked windows (see ``_JointProblem``), started from their independent
     alignments. Each window's ``info`` keeps its independent values, with ``rms_m`` and ``scale``
     of the joint alignment and ``rms_independent_m``, ``joint_windows`` added."""
-    problem = _JointProblem(windows, xyz_gps, sigmas)
+    problem = _JointProblem(windows, xyz_gps, sigmas, trusted)
     # lsmr, not the dense SVD solver: same solution (to 1e-6 m on the tests), but the SVD's
     # threaded LAPACK spun 10x the CPU time while COLMAP busied the other core.
     fit = least_squares(problem.residuals, np.zeros(7 * len(windows)), loss="soft_l1",
@@ -316,7 +350,8 @@ def _align_group(windows: list[AlignedWindow], xyz_gps: np.ndarray,
     out = []
     for w, sim, gps in zip(windows, sims, problem.xyz_gps):
         T_world_cam = sim.apply_poses(w.poses.T_model_cam)
-        info = {**w.info, "rms_m": _centre_rms_m(T_world_cam, gps), "scale": sim.scale,
+        use = fit_rows(w.poses.frame_idx, trusted)
+        info = {**w.info, "rms_m": _centre_rms_m(T_world_cam[use], gps[use]), "scale": sim.scale,
                 "rms_independent_m": w.info["rms_m"], "joint_windows": len(windows)}
         out.append(AlignedWindow(w.poses, sim, info, T_world_cam))
     log.info("joint alignment of windows %s: GPS rms %.3f -> %.3f m, shared frames disagree "
