@@ -26,7 +26,7 @@ from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, StageReport, no_progress)
+                                ProgressFn, RejectedSign, StageReport, no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +127,8 @@ class Reconstruction:
     origin: geodesy.LocalFrame
     timings_s: dict[str, float]
     reports: list[StageReport]
+    # Tracks the plan could not triangulate (too few frames), with the reason.
+    too_short: tuple[RejectedSign, ...] = ()
 
 
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
@@ -216,7 +218,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
     if not tracks:
         return Reconstruction(calib, [], [], xyz_gps, xyz_align, origin, clock.timings_s,
-                              journal.reports)
+                              journal.reports, the_plan.too_short)
 
     with journal.stage("ego_motion") as entry, \
             clock.stage("ego_motion", f"{len(ego_windows)} windows"):
@@ -235,7 +237,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                                 "reconstructed: " + "; ".join(r.error or "too few frames registered"
                                                               for r in results))
     return Reconstruction(calib, tracks, poses, xyz_gps, xyz_align, origin, clock.timings_s,
-                          journal.reports)
+                          journal.reports, the_plan.too_short)
 
 
 def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig, *,
@@ -243,8 +245,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
     """The stages after ego-motion: align the windows to the GPS, triangulate the signs."""
     origin, xyz_gps, xyz_align = recon.origin, recon.xyz_gps, recon.xyz_align
     origin_lat_lon_alt = (origin.lat0_deg, origin.lon0_deg, origin.alt0_m)
+    too_short = list(recon.too_short)
     if not recon.tracks:
-        return JourneyResult(recon.calib, [], [], dict(recon.timings_s),
+        return JourneyResult(recon.calib, [], too_short, dict(recon.timings_s),
                              origin_lat_lon_alt=origin_lat_lon_alt, report=list(recon.reports))
     journal = _Journal(list(recon.reports))
     clock = _Clock(progress, OTHER_STAGES, timings_s=dict(recon.timings_s),
@@ -275,6 +278,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
     with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
         signs, rejected = place_signs.place_signs(tracks, aligned, xyz_align, camera, journey,
                                                   origin, config)
+        rejected += too_short
     journal.add(place_signs.report(signs, rejected))
 
     # Overlapping windows pose some frames twice: keep the first window's pose.

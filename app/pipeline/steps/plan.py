@@ -15,7 +15,7 @@ from app.pipeline.steps import calibrate, ego_motion, sign_tracks, turns
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.steps.turns import TurnWindow
-from app.pipeline.types import CameraModel, Journey, StageReport
+from app.pipeline.types import CameraModel, Journey, RejectedSign, StageReport
 
 
 NORMAL_Z75 = 0.674  # the 75th percentile of a standard normal
@@ -37,6 +37,8 @@ class JourneyPlan:
     ego_step: int = 1
     ego_front_end: str = "klt"
     frame_spacing_m: float | None = None  # between consecutive frames at the cruise speed
+    # Tracks none of whose passes has the frames to triangulate: reported, never placed.
+    too_short: tuple[RejectedSign, ...] = ()
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
@@ -57,11 +59,18 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
     ego_step = frame_step(spacing_m, config.ego_frame_step, config.ego_max_spacing_m)
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
     margin = config.sign_window_margin_frames
-    tracks = [p for t in sign_tracks.group_detections(journey.detections, journey.frame_ids)
-              for p in sign_tracks.split_passes(
+    passes = {t.track_id: sign_tracks.split_passes(
                   t, max_gap=2 * margin,
                   max_frames=max(1, config.ego_max_frames_per_window - 2 * margin))
+              for t in sign_tracks.group_detections(journey.detections, journey.frame_ids)}
+    tracks = [p for ps in passes.values() for p in ps
               if len(p.frame_idx) >= config.min_track_frames]
+    too_short = tuple(
+        RejectedSign(track_id, ps[0].cls, f"seen in only {max(len(p.frame_idx) for p in ps)} "
+                     f"frame(s){' per pass' if len(ps) > 1 else ''}; triangulating needs "
+                     f"{config.min_track_frames} (min_track_frames)")
+        for track_id, ps in passes.items()
+        if all(len(p.frame_idx) < config.min_track_frames for p in ps))
     ego_windows = ego_motion.plan_windows(tracks, len(journey.frames), margin=margin,
                                           max_frames=config.ego_max_frames_per_window,
                                           step=ego_step,
@@ -73,7 +82,8 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                        ego_frames=ego_motion.mapped_frames(ego_windows, ego_step, off_grid),
                        ego_step=ego_step, frame_spacing_m=spacing_m,
                        ego_front_end=ego_front_end(spacing_m, ego_step, config.ego_front_end,
-                                                   config.ego_sift_min_spacing_m))
+                                                   config.ego_sift_min_spacing_m),
+                       too_short=too_short)
 
 
 def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | None = None, *,

@@ -1,0 +1,46 @@
+"""The journey's plan (``steps.plan``) and what becomes of the tracks it cannot triangulate: no
+COLMAP, the turn journey's frames, GPS and detections as read."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from app.pipeline.bundle import read_bundle
+from app.pipeline.config import PipelineConfig
+from app.pipeline.geometry.geodesy import frame_at
+from app.pipeline.run import Reconstruction, georeference
+from app.pipeline.steps import plan
+from app.pipeline.types import Calibration, CameraModel, Detection
+
+
+def _with_short_tracks(journey):
+    """The journey plus a 'flash' track seen in 2 frames and a 'blip' track seen once."""
+    ids = [f.frame_id for f in journey.frames]
+    extra = [Detection(ids[k], "flash", "stop", 100, 100, 120, 120) for k in (5, 6)]
+    extra.append(Detection(ids[9], "blip", "yield", 200, 100, 220, 120))
+    return replace(journey, detections=journey.detections + extra)
+
+
+def test_a_track_too_short_to_triangulate_is_reported_with_the_reason(turn_journey_bundle,
+                                                                       tmp_path):
+    bundle, _ = turn_journey_bundle
+    journey = _with_short_tracks(read_bundle(bundle, tmp_path / "bundle"))
+    origin = frame_at(journey.lat_deg[0], journey.lon_deg[0], None)
+    xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg, None)
+    config = PipelineConfig()
+    the_plan = plan.plan_journey(journey, xyz_gps, config)
+    reasons = {r.track_id: r.reason for r in the_plan.too_short}
+    assert {"flash", "blip"} <= set(reasons)  # (the rendered journey has a short track too)
+    assert "only 2 frame(s)" in reasons["flash"] and "only 1 frame(s)" in reasons["blip"]
+    assert {"flash", "blip"}.isdisjoint(t.track_id for t in the_plan.tracks)
+    assert {t.track_id for t in the_plan.tracks}  # the journey's own tracks are kept
+
+    # Georeferencing reports them among the rejected signs, even with nothing else to place.
+    camera = CameraModel(journey.image_width, journey.image_height, 800.0, 800.0,
+                         journey.image_width / 2, journey.image_height / 2, 0.0, 0.0)
+    recon = Reconstruction(Calibration(camera=camera, source="supplied"), [], [], xyz_gps,
+                           xyz_gps, origin, {}, [], the_plan.too_short)
+    result = georeference(journey, recon, config)
+    assert {(r.track_id, r.cls, r.reason) for r in result.rejected} == {
+        (r.track_id, r.cls, r.reason) for r in the_plan.too_short}
+    assert {("flash", "stop"), ("blip", "yield")} <= {(r.track_id, r.cls) for r in result.rejected}
