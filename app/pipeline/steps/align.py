@@ -1,8 +1,9 @@
 """Scale and place monocular reconstructions in the metric GPS frame (the paper's eq. 5-6).
 
 Each window alone is placed by one Umeyama similarity to the GPS fixes of its frames
-(``align_window``), i.e. shifted by the GPS bias averaged over its 30-80 frames (~0.5 m on the
-synthetic journeys, whose bias stays correlated over ~40-60 frames). ``align_windows`` aligns
+(``align_window``), i.e. shifted by the GPS bias averaged over its frames (~0.5 m on the
+synthetic journeys, whose bias stays correlated over ~40-60 frames); frames inside a GPS dropout
+(``gps_track.in_dropout``) are left out of the fit and of the residual (``fit_rows``). ``align_windows`` aligns
 windows that pose the same frames (chained by ``ego_motion.plan_windows``) jointly: they must
 agree on those frames, so a whole chain averages the bias over its length. A short stretch of
 straight road leaves the roll about the road undetermined by positions;
