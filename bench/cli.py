@@ -73,7 +73,7 @@ def run_corpus_command(args) -> int:
                            calibrate_only=args.calibrate_only, true_camera=args.true_camera,
                            config_overrides=dict(args.set or []), tag=args.tag,
                            resume=args.resume, keep_dir=args.keep_reconstructions,
-                           replay_dir=args.replay)
+                           replay_dir=args.replay, focal_scale=args.true_camera_focal_scale)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -215,6 +215,9 @@ def _add_corpus_parser(bench_sub) -> None:
     c.add_argument("--true-camera", action="store_true",
                    help="give the pipeline each journey's true camera instead of self-calibrating "
                         "(measures sign placement on every journey, those without turns too)")
+    c.add_argument("--true-camera-focal-scale", type=float, default=1.0, metavar="F",
+                   help="with --true-camera: hand over fx and fy times F (0.97: a calibration "
+                        "3 %% short), to see what a focal error does to the later stages")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")

@@ -35,7 +35,8 @@ from bench.runner import finite
 CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
-RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of")
+RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of",
+                "true_camera_focal_scale")
 
 
 class CorpusPaths(NamedTuple):
@@ -205,19 +206,24 @@ def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | 
 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
                 calibrate_only: bool, true_camera: bool = False, *,
-                keep_dir: Path | None = None, replay_dir: Path | None = None) -> dict:
+                keep_dir: Path | None = None, replay_dir: Path | None = None,
+                focal_scale: float = 1.0) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
     that sign placement is measured on every journey, those without turns included.
     ``keep_dir``: keep its reconstruction there; ``replay_dir``: georeference the one kept there
-    instead of running the pipeline (``bench.replay``)."""
+    instead of running the pipeline (``bench.replay``). ``focal_scale``: the true camera's fx
+    and fy are handed over times this (what a calibration that many per cent off does to the
+    later stages)."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
     digest = bundle_digest(jdir / "bundle.zip")
     known = None
     if true_camera:
         cam = truth["camera"]
-        known = CameraModel.from_params(cam["width"], cam["height"], cam)
+        known = CameraModel.from_params(cam["width"], cam["height"],
+                                        {**cam, "fx": cam["fx"] * focal_scale,
+                                         "fy": cam["fy"] * focal_scale})
         config = config.model_copy(update={"reuse_known_calibration": True})
     if replay_dir is not None:
         return journey_record(entry, _replayed(entry["name"], replay_dir, config), truth,
@@ -291,7 +297,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                calibrate_only: bool = False, true_camera: bool = False,
                config_overrides: dict[str, Any] | None = None,
                tag: str = "", resume: bool = False, keep_dir: Path | None = None,
-               replay_dir: Path | None = None) -> CorpusPaths:
+               replay_dir: Path | None = None, focal_scale: float = 1.0) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
     .jsonl (records), .md, .json and .png into ``out_dir``. ``keep_dir`` / ``replay_dir``: keep
     each journey's reconstruction there, or only georeference those kept there (``bench.replay``);
@@ -312,7 +318,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     meta = {"kind": "meta", **run_meta(False, config), "corpus": str(corpus_dir.resolve()),
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
-            "true_camera": true_camera,
+            "true_camera": true_camera, "true_camera_focal_scale": focal_scale,
             "config_overrides": overrides, "tag": tag,
             "replay_of": None if replay_dir is None else str(Path(replay_dir).resolve())}
     meta.pop("quick", None)
@@ -335,7 +341,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     for i, entry in enumerate(todo, start=1):
         log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
         record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera,
-                             keep_dir=keep_dir, replay_dir=replay_dir)
+                             keep_dir=keep_dir, replay_dir=replay_dir, focal_scale=focal_scale)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"
