@@ -258,9 +258,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
         # A window that cannot be aligned (the car stood still through it) is dropped.
         dropped: list[str] = []
         trusted = gps_trusted(journey, config)
-        if trusted is not None and not trusted.all():
-            dropped.append(f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
-                           "positions neither align nor judge a window")
+        untrusted = ([] if trusted is None or trusted.all() else
+                     [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
+                      "positions neither align nor judge a window"])
         aligned = align.align_windows(
             poses, xyz_align, joint=config.alignment_joint,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
@@ -270,7 +270,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
             xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted)
-        entry.take(align.report(len(poses), aligned, dropped))
+        entry.take(align.report(len(poses), aligned, untrusted + dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                                 "(the GPS track does not move enough around the signs)")

@@ -3,9 +3,10 @@
 Each window alone is placed by one Umeyama similarity to the GPS fixes of its frames
 (``align_window``), i.e. shifted by the GPS bias averaged over its frames (~0.5 m on the
 synthetic journeys, whose bias stays correlated over ~40-60 frames); frames inside a GPS dropout
-(``gps_track.in_dropout``) are left out of the fit and of the residual (``fit_rows``). ``align_windows`` aligns
-windows that pose the same frames (chained by ``ego_motion.plan_windows``) jointly: they must
-agree on those frames, so a whole chain averages the bias over its length. A short stretch of
+(``gps_track.in_dropout``) are left out of the fit and of the residual (``fit_rows``).
+``align_windows`` aligns windows that pose the same frames (chained by
+``ego_motion.plan_windows``) jointly: they must agree on those frames, so a whole chain averages
+the bias over its length. A short stretch of
 straight road leaves the roll about the road undetermined by positions;
 ``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
 
@@ -157,16 +158,17 @@ def _centre_rms_m(T_world_cam: np.ndarray, xyz: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((T_world_cam[:, :3, 3] - xyz) ** 2, axis=1))))
 
 
-def report(n_windows: int, aligned: list[AlignedWindow], dropped: list[str]) -> StageReport:
-    """The align stage's report: the windows aligned (their GPS residual) and those dropped
-    (``dropped``: one line each, from ``align_windows(on_dropped=...)``)."""
+def report(n_windows: int, aligned: list[AlignedWindow], notes: list[str]) -> StageReport:
+    """The align stage's report: the windows aligned (their GPS residual), then ``notes``, one
+    line each: frames left out as GPS dropouts, windows dropped (``align_windows(on_dropped=
+    ...)``)."""
     chains = len({w.info.get("group") for w in aligned if "group" in w.info})
     summary = f"{len(aligned)} of {n_windows} windows aligned to GPS"
     if chains:
         summary += f" in {chains} joint group(s)"
     details = tuple(f"frames {w.poses.window[0]}-{w.poses.window[1] - 1}: GPS rms "
                     f"{w.info['rms_m']:.2f} m" for w in aligned)
-    return StageReport("align", summary, details + tuple(dropped))
+    return StageReport("align", summary, details + tuple(notes))
 
 
 def _shared_rows(a: WindowPoses, b: WindowPoses) -> tuple[np.ndarray, np.ndarray]:
