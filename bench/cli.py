@@ -159,6 +159,26 @@ def _add_gps_scale_parser(bench_sub) -> None:
     g.set_defaults(func=run_gps_scale_command)
 
 
+def run_gps_focal_command(args) -> int:
+    from bench.gps_focal import collect, table
+
+    print(table(collect(args.replay, args.corpus)))
+    return 0
+
+
+def _add_gps_focal_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "gps-focal", help="can the GPS check the focal length? kept reconstructions' turning "
+        "windows unbent to fit the GPS (a study)",
+        description="For each journey kept by `bench corpus --keep-reconstructions`, the "
+        "rotation scale (fx_true / fx used) that best fits its turning ego-motion windows to its "
+        "GPS and to the true camera centres, beside the true one.")
+    g.add_argument("--replay", type=Path, action="append", required=True,
+                   help="a --keep-reconstructions directory (repeatable)")
+    g.add_argument("--corpus", type=Path, required=True, help="the corpus directory (truth)")
+    g.set_defaults(func=run_gps_focal_command)
+
+
 def run_pose_error_command(args) -> int:
     from bench.pose_error import collect, table
 
@@ -328,6 +348,7 @@ def add_parsers(sub) -> None:
     _add_corpus_parser(bench_sub)
     _add_turns_parser(bench_sub)
     _add_gps_scale_parser(bench_sub)
+    _add_gps_focal_parser(bench_sub)
     _add_pose_error_parser(bench_sub)
     _add_real_ego_parser(bench_sub)
     u = bench_sub.add_parser(

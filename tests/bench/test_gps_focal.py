@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from app.pipeline.steps.ego_motion import WindowPoses
-from app.pipeline.steps.focal_check import focal_evidence, unbent_centres
+from bench.gps_focal import focal_evidence, unbent_centres
 
 
 def _turn(n: int, turn_deg: float, radius_m: float, kappa: float) -> tuple[np.ndarray, np.ndarray]:
