@@ -118,6 +118,9 @@ class PipelineConfig(BaseModel):
         False, description="accept a calibration only when two windows agree on it (never on "
         "one window's reprojection error alone); windows after the first usable one start "
         "from its camera")
+    calib_alone_min_rotation_deg: float = Field(
+        0.0, description="a candidate turning less than this (degrees) is not accepted on its "
+        "reprojection error alone: it needs a window of other frames that agrees")
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")

@@ -240,3 +240,17 @@ def test_windows_with_a_loose_focal_length_need_one_another_to_agree():
     # Without the knob (the default), each is refused.
     err, tried = _search([_loose(TRUE, 0.008), _loose(nearly, 0.009)])
     assert tried == [0, 1] and str(err).count("(> 0.5 %)") == 2
+
+
+def test_a_window_turning_little_needs_another_to_agree():
+    # Tuning c0054 was accepted 3 % short on one sharp window of a 54 deg lens turning 42 deg.
+    knob = PipelineConfig(calib_alone_min_rotation_deg=45.0)
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    cal, tried = _search([_window(TRUE, yaw_deg=40.0), _window(nearly, yaw_deg=30.0)],
+                         config=knob)
+    assert tried == [0, 1] and cal.evidence == "agreement"
+    err, _ = _search([_window(WRONG, yaw_deg=40.0), _window(TRUE, yaw_deg=30.0)], config=knob)
+    assert "only 40 deg of rotation, under 45 and no other window agreed" in str(err)
+    # A window turning enough is accepted alone, as without the knob.
+    cal, tried = _search([_window(TRUE, yaw_deg=50.0)], config=knob)
+    assert tried == [0] and cal.evidence == "reprojection"

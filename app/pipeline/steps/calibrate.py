@@ -308,8 +308,10 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             reasons.append(f"{window.label}: {why}")
             trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
+        little_rotation = rotation_covered_deg(res.T_model_cam) < cfg.calib_alone_min_rotation_deg
         if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
-                and not cfg.calib_require_agreement and not _focal_uncertain(res, cfg)):
+                and not cfg.calib_require_agreement and not _focal_uncertain(res, cfg)
+                and not little_rotation):
             chosen, evidence = [(window, res)], "reprojection"
             trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
@@ -333,7 +335,10 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
         weak = (f"fx uncertain by {100 * res.focal_std_rel:.2f} %" if _focal_uncertain(res, cfg)
                 else "" if cfg.calib_require_agreement
-                else f"above {cfg.calib_accept_reprojection_px:g} px")
+                else f"above {cfg.calib_accept_reprojection_px:g} px"
+                if res.reprojection_error_px > cfg.calib_accept_reprojection_px
+                else f"only {rotation_covered_deg(res.T_model_cam):.0f} deg of rotation, "
+                     f"under {cfg.calib_alone_min_rotation_deg:g}")
         trials.append(f"{_trial(window, res)}: "
                       + (f"{weak}, " if weak else "") + "kept until another window agrees")
         reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
