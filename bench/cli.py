@@ -67,6 +67,9 @@ def parse_knob(text: str) -> tuple[str, object]:
 def run_corpus_command(args) -> int:
     from bench.corpus import run_corpus
 
+    if args.true_camera_focal_scale != 1.0 and not args.true_camera:
+        raise SystemExit("signmap bench corpus: --true-camera-focal-scale scales the true camera: "
+                         "give --true-camera too")
     try:
         paths = run_corpus(args.corpus, args.out, half=args.half, limit=args.limit,
                            names=[n for n in (args.names or "").split(",") if n] or None,

@@ -217,6 +217,15 @@ def test_cli_parses_corpus_options(tmp_path: Path):
         parser.parse_args(["bench", "corpus", "--corpus", "x", "--set", "novalue"])
 
 
+def test_a_focal_scale_without_the_true_camera_is_refused(tmp_path: Path):
+    parser = argparse.ArgumentParser()
+    bench_cli.add_parsers(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["bench", "corpus", "--corpus", str(tmp_path),
+                              "--true-camera-focal-scale", "0.97"])
+    with pytest.raises(SystemExit, match="give --true-camera too"):
+        args.func(args)
+
+
 def test_unknown_knob_is_an_error(tmp_path: Path):
     with pytest.raises(ValueError, match="unknown pipeline knob"):
         run_corpus(tmp_path, tmp_path / "out", config_overrides={"calib_fram_step": 3})
