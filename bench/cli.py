@@ -163,9 +163,12 @@ def _add_gps_scale_parser(bench_sub) -> None:
 
 
 def run_gps_focal_command(args) -> int:
-    from bench.gps_focal import collect, table
+    from bench.gps_focal import collect, table, window_rotation_table
 
-    print(table(collect(args.replay, args.corpus)))
+    if args.records:
+        print(window_rotation_table(args.records, args.corpus))
+    if args.replay:
+        print(table(collect(args.replay, args.corpus)))
     return 0
 
 
@@ -176,8 +179,10 @@ def _add_gps_focal_parser(bench_sub) -> None:
         description="For each journey kept by `bench corpus --keep-reconstructions`, the "
         "rotation scale (fx_true / fx used) that best fits its turning ego-motion windows to its "
         "GPS and to the true camera centres, beside the true one.")
-    g.add_argument("--replay", type=Path, action="append", required=True,
+    g.add_argument("--replay", type=Path, action="append",
                    help="a --keep-reconstructions directory (repeatable)")
+    g.add_argument("--records", type=Path, help="a `bench corpus` run's .jsonl: print each "
+                   "accepted calibration window's rotation beside the GPS heading's range over it")
     g.add_argument("--corpus", type=Path, required=True, help="the corpus directory (truth)")
     g.set_defaults(func=run_gps_focal_command)
 

@@ -223,3 +223,53 @@ def table(rows: list[JourneyFocal]) -> str:
                          f"{100 * np.percentile(err, 90):.2f} % | {100 * np.median(err_t):.2f} / "
                          f"{100 * np.percentile(err_t, 90):.2f} % | {np.mean(z < 2):.0%} |")
     return "\n".join(lines)
+
+
+def gps_heading_deg(xyz_gps: np.ndarray, timestamp_s: np.ndarray, cfg) -> np.ndarray:
+    """(N,) signed heading (degrees, unwrapped) of each frame on the GPS track as the turn finder
+    sees it (``plan``'s smoothing; a 1 m grid smoothed over 3 m, as
+    ``turns.cumulative_rotation_deg`` takes it)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from app.pipeline.steps import turns
+
+    xy_m = turns.smooth_track(xyz_gps[:, :2], timestamp_s, cfg.turn_smoothing_s,
+                              cfg.turn_smoothing_max_m)
+    s_m = turns.track_length_m(xy_m, tolerance_m=cfg.rdp_tolerance_m)
+    first = np.r_[True, np.diff(s_m) > 0]
+    grid_m = np.arange(s_m[0], s_m[-1] + 1.0, 1.0)
+    xy_grid = np.column_stack([np.interp(grid_m, s_m[first], xy_m[first, k]) for k in (0, 1)])
+    xy_grid = gaussian_filter1d(xy_grid, 3.0, axis=0, mode="nearest")
+    heading = np.degrees(np.unwrap(np.arctan2(*np.gradient(xy_grid, axis=0).T[::-1])))
+    return np.interp(s_m, grid_m, heading)
+
+
+def window_rotation_table(records_path: Path, corpus_dir: Path) -> str:
+    """Per accepted self-calibration of a ``bench corpus`` run: its window's reconstructed
+    rotation beside the range of the GPS heading over the window's frames."""
+    import tempfile
+
+    from app.pipeline.bundle.read import read_bundle
+    from app.pipeline.config import PipelineConfig
+    from app.pipeline.geometry import geodesy
+
+    cfg = PipelineConfig()
+    lines = ["| journey | GPS | fx % | reconstructed ° | GPS heading range ° | ratio |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for line in Path(records_path).read_text().splitlines():
+        r = json.loads(line)
+        cal = r.get("calibration") or {}
+        if r.get("kind") != "journey" or cal.get("source") != "self":
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            journey = read_bundle(Path(corpus_dir) / r["name"] / "bundle.zip", Path(tmp))
+        origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0], None, cfg.metric_frame)
+        heading = gps_heading_deg(origin.to_local(journey.lat_deg, journey.lon_deg, None),
+                                  np.array([f.timestamp_s for f in journey.frames]), cfg)
+        a, b = cal["windows"][0]
+        gps_deg = float(np.max(np.abs(heading[a:b] - heading[a])))
+        p = r["params"]
+        lines.append(f"| {r['name']} | {p['gps_kind']} {p['gps_white_sigma_m']:.2f} m | "
+                     f"{cal['errors']['fx_pct']:+.2f} | {cal['rotation_deg']:.1f} | "
+                     f"{gps_deg:.1f} | {cal['rotation_deg'] / max(gps_deg, 1e-6):.2f} |")
+    return "\n".join(lines)

@@ -62,3 +62,12 @@ def test_the_rotation_scale_is_found_under_gps_noise(kappa):
 def test_straight_windows_are_no_evidence():
     T, xyz = _turn(40, 10.0, 50.0, 1.05)
     assert focal_evidence([WindowPoses((0, 40), np.arange(40), T)], xyz) is None
+
+
+def test_gps_heading_follows_a_turn():
+    from app.pipeline.config import PipelineConfig
+    from bench.gps_focal import gps_heading_deg
+
+    _, xyz = _turn(120, 90.0, 15.0, 1.0)
+    heading = gps_heading_deg(xyz, np.arange(120) * 0.1, PipelineConfig())
+    assert abs(heading[-1] - heading[0]) == pytest.approx(90.0, abs=3.0)
