@@ -165,6 +165,8 @@ def _add_gps_scale_parser(bench_sub) -> None:
 def run_gps_focal_command(args) -> int:
     from bench.gps_focal import collect, table, window_rotation_table
 
+    if not args.records and not args.replay:
+        raise SystemExit("signmap bench gps-focal: give --replay DIR or --records RUN.jsonl")
     if args.records:
         print(window_rotation_table(args.records, args.corpus))
     if args.replay:
