@@ -198,7 +198,8 @@ def collect(replay_dirs: list[Path], corpus_dir: Path) -> list[JourneyFocal]:
 
 def table(rows: list[JourneyFocal]) -> str:
     """Per journey, then per run and GPS kind: how far the GPS's kappa is from the true one."""
-    lines = ["| run | journey | GPS | true kappa | from GPS | z | windows, deg | from true centres |",
+    lines = ["| run | journey | GPS | true kappa | from GPS | z | windows, deg "
+             "| from true centres |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         if r.gps is None:
