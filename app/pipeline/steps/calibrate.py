@@ -187,6 +187,22 @@ def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
     return bool(cfg.calib_max_focal_std) and res.focal_std_rel > cfg.calib_max_focal_std
 
 
+def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
+    """Why a usable candidate cannot end the search on its own but needs another window to agree
+    ("" when agreement is always required), or None when it can: stage 2 pins its fx, it is
+    under the sharp-image error and it turns at least ``calib_alone_min_rotation_deg``."""
+    if _focal_uncertain(res, cfg):
+        return f"fx uncertain by {100 * res.focal_std_rel:.2f} %"
+    if cfg.calib_require_agreement:
+        return ""
+    if res.reprojection_error_px > cfg.calib_accept_reprojection_px:
+        return f"above {cfg.calib_accept_reprojection_px:g} px"
+    rotation = rotation_covered_deg(res.T_model_cam)
+    if rotation < cfg.calib_alone_min_rotation_deg:
+        return f"only {rotation:.0f} deg of rotation, under {cfg.calib_alone_min_rotation_deg:g}"
+    return None
+
+
 def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
     """Whether two windows' calibrations are the same camera within what stage 2 resolves."""
     tol = cfg.calib_agreement
@@ -308,10 +324,8 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             reasons.append(f"{window.label}: {why}")
             trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
-        little_rotation = rotation_covered_deg(res.T_model_cam) < cfg.calib_alone_min_rotation_deg
-        if (res.reprojection_error_px <= cfg.calib_accept_reprojection_px
-                and not cfg.calib_require_agreement and not _focal_uncertain(res, cfg)
-                and not little_rotation):
+        weak = _why_not_alone(res, cfg)
+        if weak is None:
             chosen, evidence = [(window, res)], "reprojection"
             trials.append(f"{_trial(window, res)}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
@@ -333,12 +347,6 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # A start near the camera lets a later window register where the wide guess did
             # not; a wrong camera is no minimum of other frames, so they do not agree with it.
             start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
-        weak = (f"fx uncertain by {100 * res.focal_std_rel:.2f} %" if _focal_uncertain(res, cfg)
-                else "" if cfg.calib_require_agreement
-                else f"above {cfg.calib_accept_reprojection_px:g} px"
-                if res.reprojection_error_px > cfg.calib_accept_reprojection_px
-                else f"only {rotation_covered_deg(res.T_model_cam):.0f} deg of rotation, "
-                     f"under {cfg.calib_alone_min_rotation_deg:g}")
         trials.append(f"{_trial(window, res)}: "
                       + (f"{weak}, " if weak else "") + "kept until another window agrees")
         reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
