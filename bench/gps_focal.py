@@ -228,21 +228,12 @@ def table(rows: list[JourneyFocal]) -> str:
 
 def gps_heading_deg(xyz_gps: np.ndarray, timestamp_s: np.ndarray, cfg) -> np.ndarray:
     """(N,) signed heading (degrees, unwrapped) of each frame on the GPS track as the turn finder
-    sees it (``plan``'s smoothing; a 1 m grid smoothed over 3 m, as
-    ``turns.cumulative_rotation_deg`` takes it)."""
-    from scipy.ndimage import gaussian_filter1d
-
+    sees it (``plan``'s smoothing, then ``turns.heading_deg``)."""
     from app.pipeline.steps import turns
 
     xy_m = turns.smooth_track(xyz_gps[:, :2], timestamp_s, cfg.turn_smoothing_s,
                               cfg.turn_smoothing_max_m)
-    s_m = turns.track_length_m(xy_m, tolerance_m=cfg.rdp_tolerance_m)
-    first = np.r_[True, np.diff(s_m) > 0]
-    grid_m = np.arange(s_m[0], s_m[-1] + 1.0, 1.0)
-    xy_grid = np.column_stack([np.interp(grid_m, s_m[first], xy_m[first, k]) for k in (0, 1)])
-    xy_grid = gaussian_filter1d(xy_grid, 3.0, axis=0, mode="nearest")
-    heading = np.degrees(np.unwrap(np.arctan2(*np.gradient(xy_grid, axis=0).T[::-1])))
-    return np.interp(s_m, grid_m, heading)
+    return turns.heading_deg(xy_m, turns.track_length_m(xy_m, tolerance_m=cfg.rdp_tolerance_m))
 
 
 def chord_heading_deg(xy_m: np.ndarray, s_m: np.ndarray, at_m: float, chord_m: float) -> float:

@@ -223,23 +223,44 @@ def track_length_m(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> np.ndarray:
     return _simplify(xy_m, tolerance_m).s_m
 
 
+def _grid_heading_rad(xy_m: np.ndarray, s_m: np.ndarray, step_m: float, smooth_m: float
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(grid_m, heading_rad): the track ``xy_m`` (N, 2) resampled every ``step_m`` of its length
+    ``s_m`` (N,), smoothed over ``smooth_m``, and its unwrapped heading there; None for a track
+    shorter than two steps."""
+    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    s_m = np.asarray(s_m, dtype=float)
+    if len(xy_m) < 2 or s_m[-1] - s_m[0] < 2 * step_m:
+        return None
+    first = np.r_[True, np.diff(s_m) > 0]  # one position per track length
+    grid_m = np.arange(s_m[0], s_m[-1] + step_m, step_m)
+    xy_grid = np.column_stack([np.interp(grid_m, s_m[first], xy_m[first, k]) for k in (0, 1)])
+    xy_grid = gaussian_filter1d(xy_grid, smooth_m / step_m, axis=0, mode="nearest")
+    return grid_m, np.unwrap(np.arctan2(*np.gradient(xy_grid, axis=0).T[::-1]))
+
+
+def heading_deg(xy_m: np.ndarray, s_m: np.ndarray, *, step_m: float = 1.0,
+                smooth_m: float = 3.0) -> np.ndarray:
+    """(N,) signed heading (degrees, counterclockwise from x, unwrapped) at each frame of
+    ``xy_m`` (N, 2), taken as ``cumulative_rotation_deg`` takes it; zeros for a too short track."""
+    grid = _grid_heading_rad(xy_m, s_m, step_m, smooth_m)
+    if grid is None:
+        return np.zeros(len(np.asarray(xy_m).reshape(-1, 2)))
+    return np.degrees(np.interp(np.asarray(s_m, dtype=float), *grid))
+
+
 def cumulative_rotation_deg(xy_m: np.ndarray, s_m: np.ndarray, *, step_m: float = 1.0,
                             smooth_m: float = 3.0) -> np.ndarray:
     """(N,) degrees of heading change, whatever the direction, accumulated along ``xy_m`` (N, 2)
     up to each frame; ``s_m`` (N,) is its ``track_length_m``. The heading is taken on the track
     resampled every ``step_m`` of length and smoothed over ``smooth_m``, so a standing car turns
     nothing and a sharp corner turns over the metres it takes, not at one frame."""
-    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-    s_m = np.asarray(s_m, dtype=float)
-    if len(xy_m) < 2 or s_m[-1] - s_m[0] < 2 * step_m:
-        return np.zeros(len(xy_m))
-    first = np.r_[True, np.diff(s_m) > 0]  # one position per track length
-    grid_m = np.arange(s_m[0], s_m[-1] + step_m, step_m)
-    xy_grid = np.column_stack([np.interp(grid_m, s_m[first], xy_m[first, k]) for k in (0, 1)])
-    xy_grid = gaussian_filter1d(xy_grid, smooth_m / step_m, axis=0, mode="nearest")
-    heading = np.unwrap(np.arctan2(*np.gradient(xy_grid, axis=0).T[::-1]))
+    grid = _grid_heading_rad(xy_m, s_m, step_m, smooth_m)
+    if grid is None:
+        return np.zeros(len(np.asarray(xy_m).reshape(-1, 2)))
+    grid_m, heading = grid
     turned = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(heading)))])
-    return np.degrees(np.interp(s_m, grid_m, turned))
+    return np.degrees(np.interp(np.asarray(s_m, dtype=float), grid_m, turned))
 
 
 def total_rotation_deg(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> float:
