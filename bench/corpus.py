@@ -137,7 +137,12 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
               "status": "ok" if out.result is not None else "failed", "error": out.error,
               "n_frames": out.n_frames, "wall_s": round(out.wall_s, 2),
               "timings_s": out.timings_s, "calib_s": out.timings_s.get("calibrate"),
-              "calibration": None}
+              "calibration": None,
+              # One line per candidate tried (its registration, turn and the GPS's, the verdict):
+              # what a knob that only refuses candidates would change can be read off it.
+              "calib_trials": next((list(r.details) for r in (
+                  out.result.report if out.result is not None else out.failure_report)
+                  if r.stage == "calibrate"), [])}
     if out.result is None:
         return record
     record["calibration"] = calibration_record(out.result, truth["camera"])

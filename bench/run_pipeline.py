@@ -14,7 +14,7 @@ from pathlib import Path
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
-from app.pipeline.types import CameraModel, Journey, JourneyResult, PipelineError
+from app.pipeline.types import CameraModel, Journey, JourneyResult, PipelineError, StageReport
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,8 @@ class RunOutput:
     # (frame_id, track_id, x1, y1, x2, y2) of every detection as the pipeline tracked it (track ids
     # ``auto-k`` where the bundle had none): lets a bench say which track a true sign became.
     detections: tuple[tuple[str, str, float, float, float, float], ...] = ()
+    # The stage reports of a failed run (a run that succeeded has them in ``result.report``).
+    failure_report: tuple[StageReport, ...] = ()
 
     @property
     def fps(self) -> float:
@@ -82,18 +84,18 @@ def _run_in_child(task: RunTask) -> RunOutput:
     read_s = time.perf_counter() - t0
     progress = _progress(task.label)
     config = PipelineConfig(**task.config)
-    result, error = None, None
+    result, error, failure_report = None, None, ()
     try:
         if task.naive:
             result = naive_journey(journey, config, task.workdir / "naive", progress=progress)
         else:
             result = _process(task, journey, config, progress)
     except PipelineError as exc:
-        error = str(exc)
+        error, failure_report = str(exc), tuple(exc.report)
     wall_s = time.perf_counter() - t0
     timings = {"read": round(read_s, 3), **(result.timings_s if result else {})}
     return RunOutput(task.label, result, error, len(journey.frames), wall_s, timings,
-                     peak_rss_mb(), cpu_seconds(), detections_of(journey))
+                     peak_rss_mb(), cpu_seconds(), detections_of(journey), failure_report)
 
 
 def _process(task: RunTask, journey: Journey, config: PipelineConfig, progress) -> JourneyResult:

@@ -128,6 +128,17 @@ class PipelineConfig(BaseModel):
     calib_alone_min_rotation_deg: float = Field(
         45.0, description="a candidate turning less than this (degrees) is not accepted on its "
         "reprojection error alone: it needs a window of other frames that agrees")
+    calib_gps_rotation_check: bool = Field(
+        True, description="refuse a candidate whose reconstruction turns further than the GPS "
+        "track over its frames by more than the slack below (a focal length far too short)")
+    calib_gps_chord_m: float = Field(
+        10.0, description="length (m) of the GPS chords whose headings measure a candidate "
+        "window's turn")
+    calib_gps_rotation_sigmas: float = Field(
+        3.0, description="slack of the GPS rotation check in standard deviations of the GPS "
+        "heading change (from the fixes' white noise and the chord length)")
+    calib_gps_rotation_min_slack_deg: float = Field(
+        10.0, description="least slack (degrees) of the GPS rotation check")
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")

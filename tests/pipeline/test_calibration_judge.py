@@ -254,3 +254,44 @@ def test_a_window_turning_little_needs_another_to_agree():
     # A window turning enough is accepted alone, as without the knob.
     cal, tried = _search([_window(TRUE, yaw_deg=50.0)], config=knob)
     assert tried == [0] and cal.evidence == "reprojection"
+
+
+def _index(windows, window) -> int:
+    return next(k for k, w in enumerate(windows) if w is window)
+
+
+def _windows_with_gps(n: int, gps_deg: float, std_deg: float):
+    from app.pipeline.steps.calibrate import CalibrationWindow
+
+    return [CalibrationWindow(np.arange(30) + 20 * k, 40, gps_rotation_deg=gps_deg,
+                              gps_rotation_std_deg=std_deg) for k in range(n)]
+
+
+def test_a_window_turning_far_beyond_the_gps_is_refused_and_the_search_goes_on():
+    from app.pipeline.steps.calibrate import self_calibrate
+
+    # The corpus case (seed 64, c0075): 68 deg reconstructed where the GPS turned 44.
+    windows = _windows_with_gps(2, 44.0, 2.3)
+    results = [_window(WRONG, yaw_deg=68.0), _window(TRUE, yaw_deg=46.0)]
+    trials: list[str] = []
+    cal = self_calibrate(windows, PipelineConfig(), lambda w, start: results[_index(windows, w)],
+                         width=1242, height=375, trials=trials)
+    assert cal.camera == TRUE
+    assert "refused, turns 68 deg where the GPS turns 44 (at most 54)" in trials[0]
+    assert "(GPS 44 ± 2.3)" in trials[1]
+    # Off, or with noise too large to tell (phone-grade: 3 m over 10 m chords), it is accepted.
+    for config, std_deg in ((PipelineConfig(calib_gps_rotation_check=False), 2.3),
+                            (PipelineConfig(), 34.0)):
+        windows = _windows_with_gps(2, 44.0, std_deg)
+        cal = self_calibrate(windows, config, lambda w, start: results[_index(windows, w)],
+                             width=1242, height=375)
+        assert cal.camera == WRONG
+
+
+def test_a_window_turning_less_than_the_gps_is_not_refused_for_it():
+    from app.pipeline.steps.calibrate import self_calibrate
+
+    windows = _windows_with_gps(1, 90.0, 2.3)
+    cal = self_calibrate(windows, PipelineConfig(), lambda w, start: _window(TRUE, yaw_deg=60.0),
+                         width=1242, height=375)
+    assert cal.camera == TRUE

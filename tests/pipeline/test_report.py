@@ -40,8 +40,8 @@ def test_self_calibration_lists_every_candidate_it_tried():
     assert len(trials) == 3
     assert trials[0].startswith("frames 0-29: 10/30 registered") and "refused" in trials[0]
     assert trials[1].startswith("frames 10-39: 30/30 registered, 0.50 px") and "kept" in trials[1]
-    assert trials[2] == ("frames 20-49: 30/30 registered, 0.20 px, fx ± 0.12 %: accepted, "
-                         "under 0.35 px")
+    assert trials[2] == ("frames 20-49: 30/30 registered, 0.20 px, fx 959.0, fx ± 0.12 %, "
+                         "turns 60.0 deg: accepted, under 0.35 px")
 
 
 def test_stage_reports_round_trip_through_json():

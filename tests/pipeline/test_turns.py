@@ -225,3 +225,19 @@ def test_cumulative_rotation_follows_a_u_turn_and_ignores_a_standing_car():
     assert np.all(np.diff(rot_deg) >= 0)
     assert rot_deg[-1] == pytest.approx(180.0, abs=15.0)
     assert rot_deg[299] < 30.0  # before the turn, standing included
+
+
+def test_chord_rotation_measures_a_sharp_turn_whole_and_a_straight_road_as_none():
+    from app.pipeline.steps.turns import chord_rotation_deg, track_length_m
+
+    # 30 m straight east, a quarter circle of radius 8 m turning left, 30 m straight north.
+    arc = np.linspace(-np.pi / 2, 0.0, 40)
+    xy = np.vstack([np.column_stack([np.linspace(-30.0, 0.0, 60), np.full(60, -8.0)])[:-1],
+                    np.column_stack([8 * np.cos(arc), 8 * np.sin(arc)]),
+                    np.column_stack([np.full(60, 8.0), np.linspace(0.0, 30.0, 60)])[1:]])
+    s = track_length_m(xy, tolerance_m=0.1)
+    assert chord_rotation_deg(xy, s, np.array([10, 60, 150]), 10.0) == pytest.approx(90.0, abs=1.0)
+    # Up to the arc's middle: 45 deg, the chord centred there being the tangent.
+    mid = 59 + 20
+    assert chord_rotation_deg(xy, s, np.array([10, mid]), 10.0) == pytest.approx(45.0, abs=3.0)
+    assert chord_rotation_deg(xy, s, np.array([0, 20, 40]), 10.0) == pytest.approx(0.0, abs=1e-6)

@@ -48,10 +48,14 @@ CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17, -1.0, 0.0)
 @dataclass(frozen=True)
 class CalibrationWindow:
     """One candidate: ``frame_idx`` (K,) sorted journey frame indices to map, around the turn
-    whose RDP vertex is frame ``vertex``."""
+    whose RDP vertex is frame ``vertex``. ``gps_rotation_deg``: how far the GPS track turns over
+    those frames (``turns.chord_rotation_deg``), ``gps_rotation_std_deg`` its standard deviation
+    from the GPS noise; NaN where unknown (``plan.gps_rotation``)."""
 
     frame_idx: np.ndarray
     vertex: int
+    gps_rotation_deg: float = float("nan")
+    gps_rotation_std_deg: float = float("nan")
 
     @property
     def label(self) -> str:
@@ -183,6 +187,29 @@ def judge_window(res: WindowResult, cfg: PipelineConfig, *,
     return _implausible(res.camera)
 
 
+def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult,
+                      cfg: PipelineConfig) -> str | None:
+    """Why the reconstruction turns further than the GPS allows, or None.
+
+    A focal length far too short opens every bearing, so the window's cameras turn further than
+    the car did: a narrow lens with strong barrel distortion calibrated 38 % short (k1 -0.14 for
+    -0.37) at 0.18 px with every frame registered turned 68 deg where the GPS turned 44 (corpus
+    seed 64, 2026-11-27). Only the excess is a tell: a reconstruction may turn less than the GPS
+    says, where noise made the track zigzag. A 3 % focal error turns a 60 deg window by 2 deg,
+    which this does not resolve, and is not meant to."""
+    if not (cfg.calib_gps_rotation_check and np.isfinite(window.gps_rotation_deg)
+            and np.isfinite(window.gps_rotation_std_deg)):
+        return None
+    rotation = rotation_covered_deg(res.T_model_cam)
+    bound = window.gps_rotation_deg + max(cfg.calib_gps_rotation_min_slack_deg,
+                                          cfg.calib_gps_rotation_sigmas
+                                          * window.gps_rotation_std_deg)
+    if rotation > bound:
+        return (f"turns {rotation:.0f} deg where the GPS turns {window.gps_rotation_deg:.0f} "
+                f"(at most {bound:.0f}): the focal length is too short")
+    return None
+
+
 def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
     return bool(cfg.calib_max_focal_std) and res.focal_std_rel > cfg.calib_max_focal_std
 
@@ -228,8 +255,11 @@ def _trial(window: CalibrationWindow, res: WindowResult) -> str:
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
+    gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
+           if np.isfinite(window.gps_rotation_deg) else "")
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
-            f"{res.reprojection_error_px:.2f} px{spread}")
+            f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
+            f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
 
 
 def no_turn_error(cfg: PipelineConfig) -> PipelineError:
@@ -317,7 +347,8 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
-        why = judge_window(res, cfg, agreement_may_follow=True)
+        why = (judge_window(res, cfg, agreement_may_follow=True)
+               or _turns_beyond_gps(window, res, cfg))
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:

@@ -6,7 +6,7 @@ passes of its sign tracks (``sign_tracks``) and the ego-motion windows around th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -55,6 +55,7 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
         turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m))
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
+    calib_windows = gps_rotation(calib_windows, xyz_gps, gps_sigma_m(journey), config)
     spacing_m = moving_spacing_m(xyz_gps, timestamp_s, journey.gps_noise_m)
     ego_step = frame_step(spacing_m, config.ego_frame_step, config.ego_max_spacing_m)
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
@@ -84,6 +85,39 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                        ego_front_end=ego_front_end(spacing_m, ego_step, config.ego_front_end,
                                                    config.ego_sift_min_spacing_m),
                        too_short=too_short)
+
+
+# A 2-D Gaussian's 68 % radius, in standard deviations per axis (sqrt(-2 ln 0.32)).
+RADIUS68_PER_SIGMA = 1.51
+
+
+def gps_sigma_m(journey: Journey) -> float | None:
+    """The white noise (m, per horizontal axis) of the journey's fixes: measured on them, else
+    from the accuracy they state, else None."""
+    if journey.gps_noise_m is not None:
+        return journey.gps_noise_m
+    if journey.gps_accuracy_m is not None:
+        return journey.gps_accuracy_m / RADIUS68_PER_SIGMA
+    return None
+
+
+def gps_rotation(windows: list[CalibrationWindow], xyz_gps: np.ndarray, sigma_m: float | None,
+                 config: PipelineConfig) -> list[CalibrationWindow]:
+    """``windows`` with how far the raw GPS track ``xyz_gps`` (N, 3) turns over each
+    (``turns.chord_rotation_deg``) and that figure's standard deviation: the heading of a chord
+    of length L whose ends scatter by ``sigma_m`` across it has sigma sqrt(2) sigma / L, the
+    difference of two such, 2 sigma / L (radians). Raw, not smoothed: smoothing spreads a sharp
+    turn, and phone-grade noise shows in the deviation instead."""
+    if not windows:
+        return windows
+    xy_m = np.asarray(xyz_gps, dtype=float)[:, :2]
+    s_m = turns.track_length_m(xy_m, tolerance_m=config.rdp_tolerance_m)
+    std_deg = (float(np.degrees(2.0 * sigma_m / config.calib_gps_chord_m))
+               if sigma_m is not None else float("nan"))
+    return [replace(w, gps_rotation_deg=turns.chord_rotation_deg(xy_m, s_m, w.frame_idx,
+                                                                 config.calib_gps_chord_m),
+                    gps_rotation_std_deg=std_deg)
+            for w in windows]
 
 
 def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | None = None, *,

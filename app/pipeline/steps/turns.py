@@ -267,3 +267,30 @@ def total_rotation_deg(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> float:
     """Sum of |heading changes| (degrees) along the simplified track ``xy_m`` (N, 2): how much
     rotation the journey contains, whatever its direction."""
     return float(np.sum(np.abs(_simplify(xy_m, tolerance_m).turn_deg)))
+
+
+def chord_heading_deg(xy_m: np.ndarray, s_m: np.ndarray, at_m: np.ndarray,
+                      chord_m: float) -> np.ndarray:
+    """Heading (degrees, counterclockwise from x, in (-180, 180]) of the chord of ``xy_m``
+    (N, 2) from ``at_m - chord_m / 2`` to ``at_m + chord_m / 2`` metres along it, for each of
+    ``at_m`` (K,); ``s_m`` (N,) is its ``track_length_m``. On a circular arc the chord's
+    direction is the tangent at its middle whatever the curvature, and unlike a smoothed heading
+    it does not spread a sharp turn over the smoothing's width."""
+    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    s_m = np.asarray(s_m, dtype=float)
+    at_m = np.atleast_1d(np.asarray(at_m, dtype=float))
+    first = np.r_[True, np.diff(s_m) > 0]  # one position per track length
+    ends = [np.column_stack([np.interp(at_m + d, s_m[first], xy_m[first, k]) for k in (0, 1)])
+            for d in (-chord_m / 2, chord_m / 2)]
+    d_xy = ends[1] - ends[0]
+    return np.degrees(np.arctan2(d_xy[:, 1], d_xy[:, 0]))
+
+
+def chord_rotation_deg(xy_m: np.ndarray, s_m: np.ndarray, frame_idx: np.ndarray,
+                       chord_m: float) -> float:
+    """Largest heading change (degrees, either way) from the chord centred on the first of
+    ``frame_idx`` to the chord centred on any other: the GPS's measure of what a reconstruction of
+    those frames should turn (``calibrate.rotation_covered_deg`` takes the same largest change)."""
+    heading = chord_heading_deg(xy_m, s_m, np.asarray(s_m, dtype=float)[frame_idx], chord_m)
+    change = (heading - heading[0] + 180.0) % 360.0 - 180.0
+    return float(np.max(np.abs(change)))
