@@ -236,17 +236,6 @@ def gps_heading_deg(xyz_gps: np.ndarray, timestamp_s: np.ndarray, cfg) -> np.nda
     return turns.heading_deg(xy_m, turns.track_length_m(xy_m, tolerance_m=cfg.rdp_tolerance_m))
 
 
-def chord_heading_deg(xy_m: np.ndarray, s_m: np.ndarray, at_m: float, chord_m: float) -> float:
-    """Heading (degrees) of the chord of ``xy_m`` (N, 2) from ``at_m - chord_m / 2`` to
-    ``at_m + chord_m / 2`` metres along it (``s_m`` (N,) its track length): on a circular arc the
-    chord's direction is the tangent at its middle, whatever the curvature."""
-    first = np.r_[True, np.diff(s_m) > 0]
-    ends = [np.array([np.interp(at_m + d, s_m[first], xy_m[first, k]) for k in (0, 1)])
-            for d in (-chord_m / 2, chord_m / 2)]
-    dx, dy = ends[1] - ends[0]
-    return float(np.degrees(np.arctan2(dy, dx)))
-
-
 def window_rotation_table(records_path: Path, corpus_dir: Path) -> str:
     """Per accepted self-calibration of a ``bench corpus`` run: its window's reconstructed
     rotation beside the range of the GPS heading over the window's frames."""
@@ -275,9 +264,7 @@ def window_rotation_table(records_path: Path, corpus_dir: Path) -> str:
         a, b = cal["windows"][0]
         gps_deg = float(np.max(np.abs(heading[a:b] - heading[a])))
         s_m = turns.track_length_m(xyz_gps[:, :2], tolerance_m=cfg.rdp_tolerance_m)
-        turn = (chord_heading_deg(xyz_gps[:, :2], s_m, s_m[b - 1], 10.0)
-                - chord_heading_deg(xyz_gps[:, :2], s_m, s_m[a], 10.0))
-        chord_deg = abs((turn + 180.0) % 360.0 - 180.0)
+        chord_deg = turns.chord_rotation_deg(xyz_gps[:, :2], s_m, np.array([a, b - 1]), 10.0)
         p = r["params"]
         lines.append(f"| {r['name']} | {p['gps_kind']} {p['gps_white_sigma_m']:.2f} m | "
                      f"{cal['errors']['fx_pct']:+.2f} | {cal['rotation_deg']:.1f} | "

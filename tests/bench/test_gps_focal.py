@@ -71,13 +71,3 @@ def test_gps_heading_follows_a_turn():
     _, xyz = _turn(120, 90.0, 15.0, 1.0)
     heading = gps_heading_deg(xyz, np.arange(120) * 0.1, PipelineConfig())
     assert abs(heading[-1] - heading[0]) == pytest.approx(90.0, abs=3.0)
-
-
-def test_a_chord_of_an_arc_points_along_the_tangent_at_its_middle():
-    from bench.gps_focal import chord_heading_deg
-
-    theta = np.linspace(0.0, np.pi / 2, 200)  # a quarter circle of 20 m radius, counterclockwise
-    xy = 20.0 * np.column_stack([np.cos(theta), np.sin(theta)])
-    s_m = 20.0 * theta
-    # Halfway along, the tangent of a counterclockwise circle points at 45 + 90 = 135 deg.
-    assert chord_heading_deg(xy, s_m, 10.0 * np.pi / 2, 10.0) == pytest.approx(135.0, abs=0.1)

@@ -241,3 +241,13 @@ def test_chord_rotation_measures_a_sharp_turn_whole_and_a_straight_road_as_none(
     mid = 59 + 20
     assert chord_rotation_deg(xy, s, np.array([10, mid]), 10.0) == pytest.approx(45.0, abs=3.0)
     assert chord_rotation_deg(xy, s, np.array([0, 20, 40]), 10.0) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_chord_of_an_arc_points_along_the_tangent_at_its_middle():
+    from app.pipeline.steps.turns import chord_heading_deg
+
+    theta = np.linspace(0.0, np.pi / 2, 200)  # a quarter circle of 20 m radius, counterclockwise
+    xy = 20.0 * np.column_stack([np.cos(theta), np.sin(theta)])
+    s_m = 20.0 * theta
+    # Halfway along, the tangent of a counterclockwise circle points at 45 + 90 = 135 deg.
+    assert chord_heading_deg(xy, s_m, 10.0 * np.pi / 2, 10.0)[0] == pytest.approx(135.0, abs=0.1)
