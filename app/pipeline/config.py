@@ -128,6 +128,12 @@ class PipelineConfig(BaseModel):
     calib_alone_min_rotation_deg: float = Field(
         45.0, description="a candidate turning less than this (degrees) is not accepted on its "
         "reprojection error alone: it needs a window of other frames that agrees")
+    # Chosen on the tuning half (corpus seed 0, calibration only, the gate off, every candidate's
+    # trial line; 2026-11-27, bench/results/2026-11-27-calib-gps-rotation.md): of 31 right
+    # candidates (fx within 3 %) the largest excess over the GPS was +8.2 deg at 3.6 deg of
+    # std (OXTS-like) and +13.2 deg at 25 (phone-like); max(10 deg, 3 std) refuses none. It
+    # refused no tuning candidate either: the two wrong minima there (phone GPS) turned less than
+    # the GPS. What it is for, a focal length far too short, was seen on check-half c0075 (seed 64).
     calib_gps_rotation_check: bool = Field(
         True, description="refuse a candidate whose reconstruction turns further than the GPS "
         "track over its frames by more than the slack below (a focal length far too short)")
