@@ -133,7 +133,8 @@ class PipelineConfig(BaseModel):
     # candidates (fx within 3 %) the largest excess over the GPS was +8.2 deg at 3.6 deg of
     # std (OXTS-like) and +13.2 deg at 25 (phone-like); max(10 deg, 3 std) refuses none. It
     # refused no tuning candidate either: the two wrong minima there (phone GPS) turned less than
-    # the GPS. What it is for, a focal length far too short, was seen on check-half c0075 (seed 64).
+    # the GPS. What it is for, a focal length far too short, was seen on check-half c0075
+    # (seed 64); on the unseen seed-128 check half it refused 2 wrong minima and no right one.
     calib_gps_rotation_check: bool = Field(
         True, description="refuse a candidate whose reconstruction turns further than the GPS "
         "track over its frames by more than the slack below (a focal length far too short)")
