@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import pytest
+
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
@@ -44,3 +46,24 @@ def test_a_track_too_short_to_triangulate_is_reported_with_the_reason(turn_journ
     assert {(r.track_id, r.cls, r.reason) for r in result.rejected} == {
         (r.track_id, r.cls, r.reason) for r in the_plan.too_short}
     assert {("flash", "stop"), ("blip", "yield")} <= {(r.track_id, r.cls) for r in result.rejected}
+
+
+def test_each_calibration_window_knows_how_far_the_gps_turns_over_it(turn_journey_bundle,
+                                                                     tmp_path):
+    import numpy as np
+
+    from app.pipeline.steps.calibrate import rotation_covered_deg
+
+    bundle, truth = turn_journey_bundle
+    journey = read_bundle(bundle, tmp_path / "bundle")
+    origin = frame_at(journey.lat_deg[0], journey.lon_deg[0], None)
+    xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg, None)
+    the_plan = plan.plan_journey(journey, xyz_gps, PipelineConfig())
+    assert the_plan.calib_windows and journey.gps_noise_m is not None
+    T_world_cam = np.array([f["T_world_cam"] for f in truth["frames"]])
+    for window in the_plan.calib_windows:
+        # What the true cameras turn over the window's frames, within the GPS's own 3 sigma.
+        true_deg = rotation_covered_deg(T_world_cam[window.frame_idx])
+        assert window.gps_rotation_std_deg == pytest.approx(
+            np.degrees(2 * journey.gps_noise_m / 10.0))
+        assert abs(window.gps_rotation_deg - true_deg) < max(3 * window.gps_rotation_std_deg, 3.0)
