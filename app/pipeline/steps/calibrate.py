@@ -206,7 +206,7 @@ def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult,
                                           * window.gps_rotation_std_deg)
     if rotation > bound:
         return (f"turns {rotation:.0f} deg where the GPS turns {window.gps_rotation_deg:.0f} "
-                f"(at most {bound:.0f}): the focal length is too short")
+                f"(at most {bound:.0f}): a focal length far too short does that")
     return None
 
 
