@@ -67,3 +67,7 @@ def test_each_calibration_window_knows_how_far_the_gps_turns_over_it(turn_journe
         assert window.gps_rotation_std_deg == pytest.approx(
             np.degrees(2 * journey.gps_noise_m / 10.0))
         assert abs(window.gps_rotation_deg - true_deg) < max(3 * window.gps_rotation_std_deg, 3.0)
+    # Without fixes to measure, the accuracy the receiver states stands in (a 68 % radius).
+    stated = replace(journey, gps_noise_m=None, gps_accuracy_m=1.5)
+    assert plan.gps_sigma_m(stated) == pytest.approx(1.5 / 1.5096, rel=1e-3)
+    assert plan.gps_sigma_m(replace(stated, gps_accuracy_m=None)) is None

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.pipeline.config import PipelineConfig
+from app.pipeline.geometry.uncertainty import RADIUS_68_IN_SIGMAS
 from app.pipeline.steps import calibrate, ego_motion, sign_tracks, turns
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
@@ -87,17 +88,13 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                        too_short=too_short)
 
 
-# A 2-D Gaussian's 68 % radius, in standard deviations per axis (sqrt(-2 ln 0.32)).
-RADIUS68_PER_SIGMA = 1.51
-
-
 def gps_sigma_m(journey: Journey) -> float | None:
     """The white noise (m, per horizontal axis) of the journey's fixes: measured on them, else
     from the accuracy they state, else None."""
     if journey.gps_noise_m is not None:
         return journey.gps_noise_m
     if journey.gps_accuracy_m is not None:
-        return journey.gps_accuracy_m / RADIUS68_PER_SIGMA
+        return journey.gps_accuracy_m / RADIUS_68_IN_SIGMAS
     return None
 
 
