@@ -128,6 +128,9 @@ class PipelineConfig(BaseModel):
     calib_alone_min_rotation_deg: float = Field(
         45.0, description="a candidate turning less than this (degrees) is not accepted on its "
         "reprojection error alone: it needs a window of other frames that agrees")
+    calib_alone_min_registered_ratio: float = Field(
+        0.0, description="a candidate that registered less than this share of its frames is not "
+        "accepted on its reprojection error alone: it needs a window of other frames that agrees")
     # Chosen on the tuning half (corpus seed 0, calibration only, the gate off, every candidate's
     # trial line; 2026-11-27, bench/results/2026-11-27-calib-gps-rotation.md): of 31 right
     # candidates (fx within 3 %) the largest excess over the GPS was +8.2 deg at 3.6 deg of

@@ -295,3 +295,20 @@ def test_a_window_turning_less_than_the_gps_is_not_refused_for_it():
     cal = self_calibrate(windows, PipelineConfig(), lambda w, start: _window(TRUE, yaw_deg=60.0),
                          width=1242, height=375)
     assert cal.camera == TRUE
+
+
+def test_a_window_that_registered_few_of_its_frames_needs_another_to_agree():
+    # Check-half c0155 (seed 128) was accepted alone on 12/19 registered at 0.29 px, fx -4.5 %.
+    knob = PipelineConfig(calib_alone_min_registered_ratio=0.9)
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    cal, tried = _search([_window(TRUE, registered=20), _window(nearly, registered=21)],
+                         config=knob)
+    assert tried == [0, 1] and cal.evidence == "agreement"
+    err, _ = _search([_window(WRONG, registered=20), _window(TRUE, registered=21)], config=knob)
+    assert "only 20/30 registered, under 90 % and no other window agreed" in str(err)
+    # Every frame registered: accepted alone, as without the knob; off, 20/30 is enough.
+    cal, tried = _search([_window(TRUE), _window(WRONG)], config=knob)
+    assert tried == [0] and cal.evidence == "reprojection"
+    cal, tried = _search([_window(WRONG, registered=20), _window(TRUE)],
+                         config=PipelineConfig(calib_alone_min_registered_ratio=0.0))
+    assert tried == [0] and cal.camera == WRONG

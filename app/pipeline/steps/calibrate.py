@@ -217,13 +217,18 @@ def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
 def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
     """Why a usable candidate cannot end the search on its own but needs another window to agree
     ("" when agreement is always required), or None when it can: stage 2 pins its fx, it is
-    under the sharp-image error and it turns at least ``calib_alone_min_rotation_deg``."""
+    under the sharp-image error, it registered at least ``calib_alone_min_registered_ratio`` of
+    its frames and it turns at least ``calib_alone_min_rotation_deg``. A camera that leaves a
+    third of the window unregistered may be one the rest of the window does not fit."""
     if _focal_uncertain(res, cfg):
         return f"fx uncertain by {100 * res.focal_std_rel:.2f} %"
     if cfg.calib_require_agreement:
         return ""
     if res.reprojection_error_px > cfg.calib_accept_reprojection_px:
         return f"above {cfg.calib_accept_reprojection_px:g} px"
+    if len(res.image_names) < cfg.calib_alone_min_registered_ratio * res.n_input:
+        return (f"only {len(res.image_names)}/{res.n_input} registered, under "
+                f"{100 * cfg.calib_alone_min_registered_ratio:g} %")
     rotation = rotation_covered_deg(res.T_model_cam)
     if rotation < cfg.calib_alone_min_rotation_deg:
         return f"only {rotation:.0f} deg of rotation, under {cfg.calib_alone_min_rotation_deg:g}"
