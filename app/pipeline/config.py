@@ -137,6 +137,10 @@ class PipelineConfig(BaseModel):
     calib_alone_min_registered_ratio: float = Field(
         0.9, description="a candidate that registered less than this share of its frames is not "
         "accepted on its reprojection error alone: it needs a window of other frames that agrees")
+    calib_alone_consistent: bool = Field(
+        False, description="a candidate is not accepted on its reprojection error alone when a "
+        "window kept before it fitted as sharply and lands on another camera: it needs a window "
+        "of other frames that agrees")
     # Chosen on the tuning half (corpus seed 0, calibration only, the gate off, every candidate's
     # trial line; 2026-11-27, bench/results/2026-11-27-calib-gps-rotation.md): of 31 right
     # candidates (fx within 3 %) the largest excess over the GPS was +8.2 deg at 3.6 deg of

@@ -312,3 +312,29 @@ def test_a_window_that_registered_few_of_its_frames_needs_another_to_agree():
     cal, tried = _search([_window(WRONG, registered=20), _window(TRUE)],
                          config=PipelineConfig(calib_alone_min_registered_ratio=0.0))
     assert tried == [0] and cal.camera == WRONG
+
+
+def test_a_window_contradicting_a_sharp_window_kept_before_it_needs_another_to_agree():
+    # Check-half c0201 (seed 192): three sharp windows turning under 45 deg were kept at fx
+    # +1 %, then one turning 50 deg at 0.23 px was accepted alone at fx -21 %.
+    knob = PipelineConfig(calib_alone_consistent=True)
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    trials: list[str] = []
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+
+    results = [_window(TRUE, yaw_deg=40.0), _window(WRONG, yaw_deg=50.0, error_px=0.1),
+               _window(nearly, yaw_deg=30.0)]
+    windows = [CalibrationWindow(np.arange(30) + 20 * k, 40) for k in range(3)]
+    cal = self_calibrate(windows, knob, lambda w, start: results[_index(windows, w)],
+                         width=1242, height=375, trials=trials)
+    assert cal.evidence == "agreement" and cal.camera in (TRUE, nearly)
+    assert "disagrees with frames 0-29 (fx 959, 0.15 px), kept until" in trials[1]
+    # Off, the sharper window is accepted alone; a kept window above the sharp-image error (or
+    # one agreeing) does not hold a sharp one back.
+    cal, tried = _search([results[0], results[1]])
+    assert tried == [0, 1] and cal.camera == WRONG
+    cal, tried = _search([_window(WRONG, yaw_deg=40.0, error_px=0.5), _window(TRUE, yaw_deg=50)],
+                         config=knob)
+    assert tried == [0, 1] and cal.camera == TRUE and cal.evidence == "reprojection"
+    cal, tried = _search([_window(nearly, yaw_deg=40.0), _window(TRUE, yaw_deg=50)], config=knob)
+    assert tried == [0, 1] and cal.camera == TRUE and cal.evidence == "reprojection"

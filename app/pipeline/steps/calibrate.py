@@ -235,6 +235,22 @@ def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
     return None
 
 
+def _contradicts(res: WindowResult, kept: list[tuple[CalibrationWindow, WindowResult]],
+                 cfg: PipelineConfig) -> str | None:
+    """Why ``res`` may not stand alone against the candidates ``kept`` before it, or None: one of
+    them fitted as sharply (under ``calib_accept_reprojection_px``, fx pinned) and was kept only
+    for turning little or registering little, and lands on another camera. Two sharp windows that
+    disagree cannot both be right, and the search has no reason to trust the later one."""
+    if not cfg.calib_alone_consistent:
+        return None
+    for window, other in kept:
+        if (other.reprojection_error_px <= cfg.calib_accept_reprojection_px
+                and not _focal_uncertain(other, cfg) and not _agree(other.camera, res.camera, cfg)):
+            return (f"disagrees with {window.label} (fx {other.camera.fx:.0f}, "
+                    f"{other.reprojection_error_px:.2f} px)")
+    return None
+
+
 def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
     """Whether two windows' calibrations are the same camera within what stage 2 resolves."""
     tol = cfg.calib_agreement
@@ -361,6 +377,8 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             trials.append(f"{_trial(window, res)}: refused, {why}")
             continue
         weak = _why_not_alone(res, cfg)
+        if weak is None:
+            weak = _contradicts(res, good, cfg)
         if weak is None:
             chosen, evidence = [(window, res)], "reprojection"
             trials.append(f"{_trial(window, res)}: accepted, under "
