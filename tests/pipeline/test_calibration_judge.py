@@ -317,7 +317,7 @@ def test_a_window_that_registered_few_of_its_frames_needs_another_to_agree():
 def test_a_window_contradicting_a_sharp_window_kept_before_it_needs_another_to_agree():
     # Check-half c0201 (seed 192): three sharp windows turning under 45 deg were kept at fx
     # +1 %, then one turning 50 deg at 0.23 px was accepted alone at fx -21 %.
-    knob = PipelineConfig(calib_alone_consistent=True)
+    knob = PipelineConfig()  # calib_alone_consistent, the default
     nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
     trials: list[str] = []
     from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
@@ -331,7 +331,8 @@ def test_a_window_contradicting_a_sharp_window_kept_before_it_needs_another_to_a
     assert "disagrees with frames 0-29 (fx 959, 0.15 px), kept until" in trials[1]
     # Off, the sharper window is accepted alone; a kept window above the sharp-image error (or
     # one agreeing) does not hold a sharp one back.
-    cal, tried = _search([results[0], results[1]])
+    cal, tried = _search([results[0], results[1]],
+                         config=PipelineConfig(calib_alone_consistent=False))
     assert tried == [0, 1] and cal.camera == WRONG
     cal, tried = _search([_window(WRONG, yaw_deg=40.0, error_px=0.5), _window(TRUE, yaw_deg=50)],
                          config=knob)
