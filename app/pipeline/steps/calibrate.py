@@ -11,10 +11,11 @@ a forward-moving pair, the two-view bundle adjustment drifts the focal length an
 else registers, or it settles in a wrong minimum. So several candidate windows around each turn are
 tried, strongest turn first, and judged by what a wrong calibration cannot fake: nearly every frame
 registered and a small stage-2 reprojection error (a wrong minimum leaves ~0.7 px, a right one
-~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins; above it,
-or when stage 2's covariance leaves its fx looser than ``calib_max_focal_std`` (but within
-``calib_agreement_max_focal_std``), a candidate needs a second window of other frames that lands on
-the same camera. A window that registers too few frames from the first focal guess is mapped again
+~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins when it
+stands alone (``_why_not_alone``: it turns enough, registered nearly every frame and contradicts
+no window as sharp kept before it); otherwise, above that error, or when stage 2's covariance
+leaves its fx looser than ``calib_max_focal_std`` (but within ``calib_agreement_max_focal_std``),
+a candidate needs a second window of other frames that lands on the same camera. A window that registers too few frames from the first focal guess is mapped again
 from others (``calib_retry_focal_factors``, in ``colmap.sfm``, where its features already are).
 Anything else is refused with every candidate's reason.
 """
