@@ -12,8 +12,8 @@ else registers, or it settles in a wrong minimum. So several candidate windows a
 tried, strongest turn first, and judged by what a wrong calibration cannot fake: nearly every frame
 registered and a small stage-2 reprojection error (a wrong minimum leaves ~0.7 px, a right one
 ~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins when it
-stands alone (``_why_not_alone``: it turns enough, registered nearly every frame and contradicts
-no window as sharp kept before it); otherwise, above that error, or when stage 2's covariance
+stands alone (``_why_not_alone``: it turns enough and contradicts no window as sharp kept before
+it); otherwise, above that error, or when stage 2's covariance
 leaves its fx looser than ``calib_max_focal_std`` (but within ``calib_agreement_max_focal_std``),
 a candidate needs a second window of other frames that lands on the same camera. A window that
 registers too few frames from the first focal guess is mapped again from others
