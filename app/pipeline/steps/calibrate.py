@@ -13,11 +13,11 @@ tried, strongest turn first, and judged by what a wrong calibration cannot fake:
 registered and a small stage-2 reprojection error (a wrong minimum leaves ~0.7 px, a right one
 ~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins when it
 stands alone (``_why_not_alone``: it turns enough and contradicts no window as sharp kept before
-it); otherwise, above that error, or when stage 2's covariance
-leaves its fx looser than ``calib_max_focal_std`` (but within ``calib_agreement_max_focal_std``),
-a candidate needs a second window of other frames that lands on the same camera. A window that
-registers too few frames from the first focal guess is mapped again from others
-(``calib_retry_focal_factors``, in ``colmap.sfm``, where its features already are).
+it); otherwise, above that error, or when stage 2's covariance leaves its fx looser than
+``calib_max_focal_std`` (but within ``calib_agreement_max_focal_std``), a candidate needs a second
+window of other frames that lands on the same camera. A window that registers too few frames from
+the first focal guess is mapped again from others (``calib_retry_focal_factors``, in
+``colmap.sfm``, where its features already are).
 Anything else is refused with every candidate's reason.
 """
 
