@@ -241,8 +241,9 @@ def _contradicts(res: WindowResult, kept: list[tuple[CalibrationWindow, WindowRe
                  cfg: PipelineConfig) -> str | None:
     """Why ``res`` may not stand alone against the candidates ``kept`` before it, or None: one of
     them fitted as sharply (under ``calib_accept_reprojection_px``, fx pinned), was kept only
-    because it could not stand alone (it turned too little, say), and lands on another camera. Two sharp windows that
-    disagree cannot both be right, and the search has no reason to trust the later one."""
+    because it could not stand alone (it turned too little, say), and lands on another camera.
+    Two sharp windows that disagree cannot both be right, and the search has no reason to trust
+    the later one."""
     if not cfg.calib_alone_consistent:
         return None
     for window, other in kept:
