@@ -277,7 +277,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
 
     with clock.stage("triangulate", f"{len({t.track_id for t in tracks})} tracks"):
         signs, rejected = place_signs.place_signs(tracks, aligned, xyz_align, camera, journey,
-                                                  origin, config)
+                                                  origin, config, trusted)
         rejected += too_short
     journal.add(place_signs.report(signs, rejected))
 

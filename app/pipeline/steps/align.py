@@ -387,7 +387,8 @@ class TrackPoses:
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
                 mode: str, margin: int, min_frames: int, local_weight: float = 1.0,
-                fill_gap_frames: int = 0) -> TrackPoses | None:
+                fill_gap_frames: int = 0, trusted: np.ndarray | None = None
+                ) -> TrackPoses | None:
     """Poses for a sign's frames. ``full``: from the window that reconstructed most of them,
     completed by the windows aligned jointly with it; ``short``: that window alone, aligned again
     to the GPS around the sign (the paper's short trajectories); ``local``: the ``full`` poses,
@@ -396,7 +397,9 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     a few seconds the GPS fixes scale about as well as the reconstruction holds it, so the best
     estimate lies between the two. ``fill_gap_frames`` (full and local): the track's frames the
     ego-motion skipped get poses interpolated between posed frames at most that many apart
-    (``geometry.pose_interpolation``; 0: none)."""
+    (``geometry.pose_interpolation``; 0: none). ``trusted`` (N,) bool over the journey's frames:
+    those whose GPS position may align the frames around the sign (``fit_rows``), as for the
+    windows."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
 
@@ -419,6 +422,9 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     placed = TrackPoses(keep, T_world_cam[rows], *_fit(best.info), best.info["rms_m"])
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
+    # A dropout's interpolated positions cut a bend's corner: over the few seconds by a sign
+    # they would pull the poses by metres (the window alignment already leaves them out).
+    near[np.flatnonzero(near)[~fit_rows(frame_idx[near], trusted)]] = False
     if near.sum() < min_frames:
         return placed
     try:

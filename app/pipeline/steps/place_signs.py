@@ -45,15 +45,17 @@ class TrackOutcome:
 
 
 def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journey: Journey,
-                origin: geodesy.LocalFrame, config: PipelineConfig
-                ) -> tuple[list[Sign], list[RejectedSign]]:
+                origin: geodesy.LocalFrame, config: PipelineConfig,
+                trusted: np.ndarray | None = None) -> tuple[list[Sign], list[RejectedSign]]:
+    """Every track placed (a sign) or refused with its reasons. ``trusted`` (N,) bool: the
+    frames whose GPS position may align the frames around a sign (``align.fit_rows``)."""
     outcomes: dict[str, TrackOutcome] = {}
     classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
     for track in tracks:
         outcome = outcomes.setdefault(track.track_id, TrackOutcome())
         try:
             outcome.placed.append(place_pass(track, aligned, xyz_gps, camera, config,
-                                             journey.gps_noise_m))
+                                             journey.gps_noise_m, trusted))
         except TriangulationError as exc:
             outcome.reasons.append(exc.reason)
     outcomes = merge_fragments(outcomes, classes, config.merge_fragments_within_m)
@@ -135,13 +137,15 @@ def merge_fragments(outcomes: dict[str, TrackOutcome], classes: dict[str, str],
 
 
 def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
-               config: PipelineConfig, gps_noise_m: float | None = None) -> PlacedPass:
+               config: PipelineConfig, gps_noise_m: float | None = None,
+               trusted: np.ndarray | None = None) -> PlacedPass:
     """One pass triangulated; raises TriangulationError with the reason it cannot be placed."""
     tp = align.track_poses(track, aligned, xyz_gps, mode=config.alignment,
                            margin=config.short_alignment_margin_frames,
                            min_frames=config.short_alignment_min_frames,
                            local_weight=config.local_alignment_weight,
-                           fill_gap_frames=config.interpolate_poses_max_gap_frames)
+                           fill_gap_frames=config.interpolate_poses_max_gap_frames,
+                           trusted=trusted)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
     check_reconstruction(tp.window_rms_m, gps_noise_m, config)
