@@ -278,19 +278,27 @@ def test_a_broken_window_is_judged_against_the_fixes_as_read_when_aligned_to_smo
     assert "joint_windows" not in judged[1].info and judged[2].info["joint_windows"] == 2
 
 
+def _dropout_in_the_bend(rng: np.random.Generator, noise_m: float):
+    """True poses of the turning track, frame and fix times (s) and the per-frame GPS positions
+    interpolated from 2 Hz fixes (white noise ``noise_m``) with none from 13 to 17 s: in the
+    90 deg bend, where the straight line across the gap cuts the corner by ~3 m."""
+    T_world_cam = _level_poses(_turning_track())
+    t_frame_s = np.arange(len(T_world_cam)) / FPS
+    t_fix_s = np.arange(0.0, t_frame_s[-1] + 0.01, 0.5)
+    t_fix_s = t_fix_s[(t_fix_s < 13.0) | (t_fix_s > 17.0)]
+    xyz_fix = np.column_stack([np.interp(t_fix_s, t_frame_s, T_world_cam[:, k, 3])
+                               for k in range(3)])
+    xyz_fix += rng.normal(0.0, noise_m, xyz_fix.shape)
+    xyz_gps = np.column_stack([np.interp(t_frame_s, t_fix_s, xyz_fix[:, k]) for k in range(3)])
+    return T_world_cam, t_frame_s, t_fix_s, xyz_gps
+
+
 def test_a_gps_dropout_in_a_bend_neither_pulls_nor_breaks_a_right_window():
     # 2 Hz fixes with a 4 s dropout in the 90 deg bend: the straight line across it cuts the
     # corner by ~3 m. Judged by those positions, a perfect window looks broken (corpus c0054 lost
     # 8 signs so); fitted and judged by the frames near fixes, it is as right as it is.
     rng = np.random.default_rng(11)
-    T_world_cam = _level_poses(_turning_track())
-    xyz_true = T_world_cam[:, :3, 3]
-    t_frame_s = np.arange(len(xyz_true)) / FPS
-    t_fix_s = np.arange(0.0, t_frame_s[-1] + 0.01, 0.5)
-    t_fix_s = t_fix_s[(t_fix_s < 13.0) | (t_fix_s > 17.0)]
-    xyz_fix = np.column_stack([np.interp(t_fix_s, t_frame_s, xyz_true[:, k]) for k in range(3)])
-    xyz_fix += rng.normal(0.0, 0.05, xyz_fix.shape)
-    xyz_gps = np.column_stack([np.interp(t_frame_s, t_fix_s, xyz_fix[:, k]) for k in range(3)])
+    T_world_cam, t_frame_s, t_fix_s, xyz_gps = _dropout_in_the_bend(rng, noise_m=0.05)
     gap = in_dropout(t_frame_s, t_fix_s, max_gap_factor=1.5)
     assert np.array_equal(np.flatnonzero(gap), np.arange(125, 175))  # fixes at 12.5, 17.5 s
     # Without the last fix (27.5 s), frames up to one fix interval past 27.0 s stay pinned.
@@ -338,13 +346,8 @@ def test_local_alignment_by_a_sign_leaves_out_a_dropout_as_the_windows_do():
     (``local``, ``short``), the straight line across the corner pulls its poses off; with the
     dropout mask only the frames near fixes align them, as for the windows."""
     rng = np.random.default_rng(11)
-    T_world_cam = _level_poses(_turning_track())
+    T_world_cam, t_frame_s, t_fix_s, xyz_gps = _dropout_in_the_bend(rng, noise_m=0.0)
     xyz_true = T_world_cam[:, :3, 3]
-    t_frame_s = np.arange(len(xyz_true)) / FPS
-    t_fix_s = np.arange(0.0, t_frame_s[-1] + 0.01, 0.5)
-    t_fix_s = t_fix_s[(t_fix_s < 13.0) | (t_fix_s > 17.0)]
-    xyz_fix = np.column_stack([np.interp(t_fix_s, t_frame_s, xyz_true[:, k]) for k in range(3)])
-    xyz_gps = np.column_stack([np.interp(t_frame_s, t_fix_s, xyz_fix[:, k]) for k in range(3)])
     trusted = ~in_dropout(t_frame_s, t_fix_s, max_gap_factor=1.5)
     aligned = align_windows(_windows(T_world_cam, CHAIN, rng), xyz_gps, trusted=trusted)
     frames = np.arange(176, 190, STEP)
