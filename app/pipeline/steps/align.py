@@ -11,7 +11,8 @@ straight road leaves the roll about the road undetermined by positions;
 ``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
 
 ``track_poses`` gives a sign its frames' poses: ``full`` from its chain; ``short`` (the paper's
-best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign.
+best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign
+(leaving out a dropout's frames, as the windows do).
 """
 
 from __future__ import annotations
