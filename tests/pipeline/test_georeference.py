@@ -361,3 +361,11 @@ def test_local_alignment_by_a_sign_leaves_out_a_dropout_as_the_windows_do():
     for mode in ("local", "short"):
         assert centre_error_m(mode, None) > 0.3
         assert centre_error_m(mode, trusted) < 0.05
+    # A sign inside the dropout: too few frames near it have fixes, so the window alignment
+    # (which left the dropout out) stands, as in ``full``.
+    inside = SignTrack("8", "stop", np.arange(144, 156, STEP), np.zeros((6, 2)))
+    full = track_poses(inside, aligned, xyz_gps, mode="full", margin=15, min_frames=5)
+    for mode in ("local", "short"):
+        tp = track_poses(inside, aligned, xyz_gps, mode=mode, margin=15, min_frames=5,
+                         trusted=trusted)
+        np.testing.assert_allclose(tp.T_world_cam, full.T_world_cam, atol=1e-9)

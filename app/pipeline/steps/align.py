@@ -399,8 +399,7 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     estimate lies between the two. ``fill_gap_frames`` (full and local): the track's frames the
     ego-motion skipped get poses interpolated between posed frames at most that many apart
     (``geometry.pose_interpolation``; 0: none). ``trusted`` (N,) bool over the journey's frames:
-    those whose GPS position may align the frames around the sign (``fit_rows``), as for the
-    windows."""
+    those whose GPS position may align the frames around the sign (None: all)."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
 
@@ -424,8 +423,10 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     a, b = track.span
     near = (frame_idx >= a - margin) & (frame_idx < b + margin)
     # A dropout's interpolated positions cut a bend's corner: over the few seconds by a sign
-    # they would pull the poses by metres (the window alignment already leaves them out).
-    near[np.flatnonzero(near)[~fit_rows(frame_idx[near], trusted)]] = False
+    # they would pull the poses by metres. Too few frames left: the window's own alignment,
+    # which left them out, stands.
+    if trusted is not None:
+        near &= np.asarray(trusted, bool)[frame_idx]
     if near.sum() < min_frames:
         return placed
     try:

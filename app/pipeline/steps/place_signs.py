@@ -48,7 +48,7 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
                 origin: geodesy.LocalFrame, config: PipelineConfig,
                 trusted: np.ndarray | None = None) -> tuple[list[Sign], list[RejectedSign]]:
     """Every track placed (a sign) or refused with its reasons. ``trusted`` (N,) bool: the
-    frames whose GPS position may align the frames around a sign (``align.fit_rows``)."""
+    frames whose GPS position may align the frames around a sign (``align.track_poses``)."""
     outcomes: dict[str, TrackOutcome] = {}
     classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
     for track in tracks:
