@@ -14,11 +14,7 @@ class PipelineConfig(BaseModel):
     metric_frame: Literal["enu", "mercator"] = "enu"
 
     # Turn finding (RDP on the metric GPS track).
-    # 1.5 m, not 2: at 2 m, 1-2 Hz GPS cutting the corner of a tight turn (5-11 m radius) left
-    # no vertex, and the journey was refused "no turn"; on 36 tuning journeys 1.5 m calibrated
-    # 31/33 turns of 45 deg or more against 28, none wrong (bench/results/
-    # 2026-11-27-rdp-tolerance-calib.md).
-    rdp_tolerance_m: float = Field(1.5, description="RDP tolerance on the metric GPS track")
+    rdp_tolerance_m: float = Field(2.0, description="RDP tolerance on the metric GPS track")
     turn_smoothing_s: float = Field(
         1.0, description="the GPS track is smoothed over this many seconds before RDP "
         "(phone-grade GPS zigzags by more than the tolerance)")

@@ -9,18 +9,15 @@ from bench.turn_detection import journey_track, largest_found_deg, parse_variant
 
 
 def test_a_fast_turn_with_sparse_gps_is_missed_unless_smoothing_is_capped_in_metres():
-    # Corpus c0058: a 51 deg turn at 18 m/s, 1 Hz GPS, 68 frames. Seen at the 2 m RDP tolerance
-    # of the time (the smaller default finds it even uncapped).
+    # Corpus c0058: a 51 deg turn at 18 m/s, 1 Hz GPS, 68 frames.
     track = journey_track(58)
     assert track.half == "tuning" and 45.0 <= track.true_largest_deg <= 60.0
-    uncapped = PipelineConfig(turn_smoothing_max_m=0.0, rdp_tolerance_m=2.0)
-    capped = PipelineConfig(rdp_tolerance_m=2.0)
+    uncapped = PipelineConfig(turn_smoothing_max_m=0.0)
     assert largest_found_deg(track, uncapped) == 0.0
-    assert 30.0 <= largest_found_deg(track, capped) <= 70.0
-    rows = table([track], {"uncapped": uncapped, "capped": capped}).splitlines()
-    assert "| uncapped | tuning | 0/1 | c0058 (51 / 0) | – |" in rows
-    assert "| capped | tuning | 1/1 | – | – |" in rows
     assert 30.0 <= largest_found_deg(track, PipelineConfig()) <= 70.0
+    rows = table([track], {"uncapped": uncapped, "defaults": PipelineConfig()}).splitlines()
+    assert "| uncapped | tuning | 0/1 | c0058 (51 / 0) | – |" in rows
+    assert "| defaults | tuning | 1/1 | – | – |" in rows
 
 
 def test_variants_are_parsed_and_bad_ones_refused(capsys):
