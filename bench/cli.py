@@ -132,7 +132,8 @@ def _add_turns_parser(bench_sub) -> None:
         "turns", help="the turn finder against the truth over corpus journeys (no rendering)",
         description="Draws the journeys `signmap synth corpus --n N --seed S` would render, "
         "without their pixels, and prints per variant and half the journeys with a true turn "
-        "of 45 deg or more where no turn is found and the gentle ones where one is.")
+        "of 45 deg or more where no turn is found and the gentle ones where one is; with a "
+        "variant, also the journeys whose calibration candidate frames it moves.")
     t.add_argument("--n", type=int, default=64, help="journeys (default 64)")
     t.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     t.add_argument("--half", choices=("tuning", "check"), help="one half only")

@@ -7,6 +7,11 @@ as the bundle reader does, and the plan's turn finding (``turns.smooth_track`` +
 turn of 45 deg or more and where no turn is found would be refused with "no turn"; a journey
 whose largest true turn is under 30 deg and where one is found would spend calibration on a
 bend that cannot calibrate. Each variant (``--variant name:knob=value,...``) is one row.
+
+A second table lists, per variant, the journeys whose calibration candidate windows hold other
+frames than the defaults' (``calibrate.candidate_windows``, as the plan builds them). Only those
+can calibrate differently under ``colmap_reproducible``, so a calibration run comparing the
+variant need render and run only them (``bench/results/2026-11-27-rdp-tolerance-calib.md``).
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import numpy as np
 from app.pipeline.bundle.gps import GpsFixes, NumberedLabels, interpolate_to_frames
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
-from app.pipeline.steps import turns
+from app.pipeline.steps import calibrate, turns
 from app.synth.draw import draw_journey, rotation_covered
 from app.synth.journey import generate
 
@@ -49,13 +54,40 @@ def journey_track(seed: int) -> JourneyTrack:
     return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s)
 
 
-def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:
-    """Rotation (deg) of the largest turn window the plan would find on ``track``."""
+def _turns_found(track: JourneyTrack, config: PipelineConfig):
+    """(the smoothed track (N, 2), the turn windows the plan would find on it)."""
     xy = turns.smooth_track(track.xy_m, track.timestamp_s, config.turn_smoothing_s,
                             config.turn_smoothing_max_m)
-    found = turns.find_turns(xy, tolerance_m=config.rdp_tolerance_m,
-                             min_angle_deg=config.turn_min_angle_deg, window_m=config.turn_window_m)
-    return max((w.rotation_deg for w in found), default=0.0)
+    return xy, turns.find_turns(xy, tolerance_m=config.rdp_tolerance_m,
+                                min_angle_deg=config.turn_min_angle_deg,
+                                window_m=config.turn_window_m)
+
+
+def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:
+    """Rotation (deg) of the largest turn window the plan would find on ``track``."""
+    return max((w.rotation_deg for w in _turns_found(track, config)[1]), default=0.0)
+
+
+def candidate_frames(track: JourneyTrack, config: PipelineConfig) -> list[tuple[int, ...]]:
+    """The frames of each calibration candidate window the plan would build on ``track``."""
+    xy, found = _turns_found(track, config)
+    s_m = turns.track_length_m(xy, tolerance_m=config.rdp_tolerance_m)
+    windows = calibrate.candidate_windows(found, s_m, config,
+                                          turns.cumulative_rotation_deg(xy, s_m))
+    return [tuple(int(i) for i in w.frame_idx) for w in windows]
+
+
+def moved_table(tracks: list[JourneyTrack], variants: dict[str, PipelineConfig],
+                base: PipelineConfig) -> str:
+    """Per variant and half, the journeys whose candidate frames differ from ``base``'s."""
+    lines = ["| variant | half | journeys whose candidate frames move |", "| --- | --- | --- |"]
+    before = {t.name: candidate_frames(t, base) for t in tracks}
+    for name, config in variants.items():
+        for half in sorted({t.half for t in tracks}, reverse=True):
+            moved = [t.name for t in tracks
+                     if t.half == half and candidate_frames(t, config) != before[t.name]]
+            lines.append(f"| {name} | {half} | {len(moved)}: {' '.join(moved) or '–'} |")
+    return "\n".join(lines)
 
 
 def table(tracks: list[JourneyTrack], variants: dict[str, PipelineConfig]) -> str:
@@ -92,4 +124,7 @@ def run(n: int, seed: int, variants: list[str], half: str | None = None) -> str:
         name, knobs = parse_variant(text)
         configs[name] = PipelineConfig(**knobs)
     seeds = [s for s in range(seed, seed + n) if not half or draw_journey(s)[1]["half"] == half]
-    return table([journey_track(s) for s in seeds], configs)
+    tracks = [journey_track(s) for s in seeds]
+    others = {k: v for k, v in configs.items() if k != "defaults"}
+    return table(tracks, configs) + (
+        "\n\n" + moved_table(tracks, others, configs["defaults"]) if others else "")
