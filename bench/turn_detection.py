@@ -2,14 +2,15 @@
 rendering a pixel (seconds per journey).
 
 For each journey drawn by ``synth.draw.draw_journey`` its GPS fixes are interpolated to the frames
-as the bundle reader does, and the plan's turn finding (``turns.smooth_track`` +
-``turns.find_turns`` with the config's knobs) runs on them. A journey whose true poses hold a
-turn of 45 deg or more and where no turn is found would be refused with "no turn"; a journey
-whose largest true turn is under 30 deg and where one is found would spend calibration on a
-bend that cannot calibrate. Each variant (``--variant name:knob=value,...``) is one row.
+as the bundle reader does, and the plan's turn finding (``plan.turns_and_candidates``:
+``turns.smooth_track`` + ``turns.find_turns`` with the config's knobs) runs on them. A journey
+whose true poses hold a turn of 45 deg or more and where no turn is found would be refused with
+"no turn"; a journey whose largest true turn is under 30 deg and where one is found would spend
+calibration on a bend that cannot calibrate. Each variant (``--variant name:knob=value,...``) is
+one row.
 
 A second table lists, per variant, the journeys whose calibration candidate windows hold other
-frames than the defaults' (``calibrate.candidate_windows``, as the plan builds them). Only those
+frames than the defaults' (``plan.turns_and_candidates``, as the plan builds them). Only those
 can calibrate differently under ``colmap_reproducible``, so a calibration run comparing the
 variant need render and run only them (``bench/results/2026-11-27-rdp-tolerance-calib.md``).
 """
@@ -23,7 +24,7 @@ import numpy as np
 from app.pipeline.bundle.gps import GpsFixes, NumberedLabels, interpolate_to_frames
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
-from app.pipeline.steps import calibrate, turns
+from app.pipeline.steps.plan import turns_and_candidates
 from app.synth.draw import draw_journey, rotation_covered
 from app.synth.journey import generate
 
@@ -54,26 +55,15 @@ def journey_track(seed: int) -> JourneyTrack:
     return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s)
 
 
-def _turns_found(track: JourneyTrack, config: PipelineConfig):
-    """(the smoothed track (N, 2), the turn windows the plan would find on it)."""
-    xy = turns.smooth_track(track.xy_m, track.timestamp_s, config.turn_smoothing_s,
-                            config.turn_smoothing_max_m)
-    return xy, turns.find_turns(xy, tolerance_m=config.rdp_tolerance_m,
-                                min_angle_deg=config.turn_min_angle_deg,
-                                window_m=config.turn_window_m)
-
-
 def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:
     """Rotation (deg) of the largest turn window the plan would find on ``track``."""
-    return max((w.rotation_deg for w in _turns_found(track, config)[1]), default=0.0)
+    found, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config)
+    return max((w.rotation_deg for w in found), default=0.0)
 
 
 def candidate_frames(track: JourneyTrack, config: PipelineConfig) -> list[tuple[int, ...]]:
     """The frames of each calibration candidate window the plan would build on ``track``."""
-    xy, found = _turns_found(track, config)
-    s_m = turns.track_length_m(xy, tolerance_m=config.rdp_tolerance_m)
-    windows = calibrate.candidate_windows(found, s_m, config,
-                                          turns.cumulative_rotation_deg(xy, s_m))
+    _, windows = turns_and_candidates(track.xy_m, track.timestamp_s, config)
     return [tuple(int(i) for i in w.frame_idx) for w in windows]
 
 

@@ -42,18 +42,25 @@ class JourneyPlan:
     too_short: tuple[RejectedSign, ...] = ()
 
 
-def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
-                 known_camera: CameraModel | None = None) -> JourneyPlan:
-    """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
-    timestamp_s = np.array([f.timestamp_s for f in journey.frames])
-    xy_track = turns.smooth_track(xyz_gps[:, :2], timestamp_s, config.turn_smoothing_s,
+def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: PipelineConfig
+                         ) -> tuple[list[TurnWindow], list[CalibrationWindow]]:
+    """The turns of the metric GPS track ``xy_m`` (N, 2) at the frames' ``timestamp_s`` (N,) and
+    the calibration candidate windows around them (before ``gps_rotation``)."""
+    xy_track = turns.smooth_track(xy_m, timestamp_s, config.turn_smoothing_s,
                                   config.turn_smoothing_max_m)
     turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
                                     min_angle_deg=config.turn_min_angle_deg,
                                     window_m=config.turn_window_m)
     s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
-    calib_windows = calibrate.candidate_windows(
+    return turn_windows, calibrate.candidate_windows(
         turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m))
+
+
+def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
+                 known_camera: CameraModel | None = None) -> JourneyPlan:
+    """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
+    timestamp_s = np.array([f.timestamp_s for f in journey.frames])
+    turn_windows, calib_windows = turns_and_candidates(xyz_gps[:, :2], timestamp_s, config)
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
     calib_windows = gps_rotation(calib_windows, xyz_gps, gps_sigma_m(journey), config)
