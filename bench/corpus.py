@@ -111,7 +111,8 @@ def calibration_record(result: JourneyResult, true_camera: dict) -> dict:
             "evidence": cal.evidence,
             "n_images": cal.n_images, "n_registered": cal.n_registered,
             "rotation_deg": float(cal.rotation_deg), "windows": [list(w) for w in cal.windows],
-            "focal_std_rel": float(cal.focal_std_rel)}
+            "focal_std_rel": float(cal.focal_std_rel),
+            "intrinsics_std": [float(v) for v in cal.intrinsics_std]}
 
 
 def bundle_digest(bundle: Path) -> str | None:

@@ -162,6 +162,8 @@ class Calibration:
     evidence: str = ""
     single_window: CameraModel | None = None  # the accepted window's own camera, before "+joint"
     focal_std_rel: float = float("nan")  # stage 2's sigma(fx) / fx from its covariance
+    # Stage 2's sigma of fx, fy, cx, cy (px), k1, k2 from its covariance; () when unknown.
+    intrinsics_std: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)

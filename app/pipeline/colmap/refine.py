@@ -53,10 +53,11 @@ _FLAT = 1e8
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
                    function_tolerance: float, aspect_sigma: float = 0.0,
                    constant_frames: tuple[int, ...] = (), threads: int = -1,
-                   covariance: bool = False) -> float:
+                   covariance: bool = False) -> np.ndarray:
     """One bundle adjustment of ``rec`` in place; with ``covariance``, returns the standard
-    deviation of fx relative to fx that the solution's covariance gives (unit pixel noise
-    scaled by the mean reprojection error; nan when it cannot be estimated), else nan."""
+    deviations (6,) of fx, fy, cx, cy (px), k1, k2 that the solution's covariance gives (unit
+    pixel noise scaled by the mean reprojection error; nan when they cannot be estimated), else
+    nan."""
     import pyceres
 
     options = presets.options(pycolmap, "BundleAdjustmentOptions",
@@ -92,30 +93,38 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
                 manifolds.append(prior)
     adjuster.solve()
     rec.update_point_3d_errors()
-    focal_std_rel = float("nan")
+    std = np.full(len(INTRINSICS_STD), np.nan)
     if covariance and params_blocks:
-        focal_std_rel = _focal_std_rel(pycolmap, rec, adjuster, params_blocks[0])
+        std = _intrinsics_std(pycolmap, rec, adjuster, params_blocks[0])
     del manifolds, params_blocks
-    return focal_std_rel
+    return std
 
 
-def _focal_std_rel(pycolmap, rec, adjuster, params: np.ndarray) -> float:
-    """sigma(fx) / fx from COLMAP's covariance of the camera block (tangent space: fx first)."""
+# What ``refine_all_intrinsics`` gives the standard deviations of, in this order: the OPENCV
+# parameters the tangent space keeps (p1, p2 are held).
+INTRINSICS_STD = ("fx", "fy", "cx", "cy", "k1", "k2")
+
+
+def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
+    """sigma of each of ``INTRINSICS_STD`` from COLMAP's covariance of the camera block."""
+    std = np.full(len(INTRINSICS_STD), np.nan)
     cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
     if cov is None:
-        return float("nan")
+        return std
     block = cov.get_other_params_cov(params)
-    if block is None or block.size == 0 or not np.isfinite(block[0, 0]):
-        return float("nan")
+    if block is None or block.shape[0] < len(std):
+        return std
     rms_px = float(rec.compute_mean_reprojection_error())
-    return float(np.sqrt(max(block[0, 0], 0.0)) * rms_px / params[0])
+    diag = np.diag(block)[: len(std)]
+    return np.where(np.isfinite(diag), np.sqrt(np.clip(diag, 0.0, None)) * rms_px, np.nan)
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
-                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> float:
+                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> np.ndarray:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
-    sigma(fx) / fx of its solution from COLMAP's covariance (``_focal_std_rel``; nan if none).
+    the standard deviations (6,) of ``INTRINSICS_STD`` from COLMAP's covariance of its solution
+    (nan where there is none).
 
     Two passes: first focal lengths and distortion with the principal point held (it is the
     weakest-determined group and must not absorb the large stage-1 focal error), then everything;
@@ -138,12 +147,11 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                    function_tolerance=function_tolerance, constant_frames=constant_frames,
                    threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    focal_std_rel = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                                   function_tolerance=function_tolerance,
-                                   aspect_sigma=aspect_sigma, constant_frames=constant_frames,
-                                   threads=threads, covariance=True)
+    std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
+                         function_tolerance=function_tolerance, aspect_sigma=aspect_sigma,
+                         constant_frames=constant_frames, threads=threads, covariance=True)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    return focal_std_rel
+    return std
 
 
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:

@@ -86,8 +86,10 @@ class WindowResult:
     # the same image from one database share its keypoints, so the depths' ratio is the ratio of
     # the windows' scales (``steps.align``).
     keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
-    # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable).
+    # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable),
+    # and its sigma of each of ``refine.INTRINSICS_STD`` (px for fx, fy, cx, cy).
     focal_std_rel: float = float("nan")
+    intrinsics_std: tuple[float, ...] = ()
     # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
     # each in its own model frame and scale.
     others: list["WindowResult"] = field(default_factory=list)
@@ -404,15 +406,17 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
-    focal_std_rel = float("nan")
+    std = None
     if window.calibrate:
         from app.pipeline.colmap.refine import refine_all_intrinsics
-        focal_std_rel = refine_all_intrinsics(
+        std = refine_all_intrinsics(
             pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
             aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
                             with_depths=window.keypoint_depths)
-    result.focal_std_rel = focal_std_rel
+    if std is not None:
+        result.intrinsics_std = tuple(float(v) for v in std)
+        result.focal_std_rel = float(std[0]) / result.camera.fx
     if window.keep_model:
         result.model_dir = out / "model"
         result.model_dir.mkdir()

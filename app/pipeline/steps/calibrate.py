@@ -277,6 +277,8 @@ def _trial(window: CalibrationWindow, res: WindowResult) -> str:
         return window.label
     spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
+    if spread and len(res.intrinsics_std) >= 4 and np.all(np.isfinite(res.intrinsics_std[2:4])):
+        spread += (f", cx ± {res.intrinsics_std[2]:.1f}, cy ± {res.intrinsics_std[3]:.1f} px")
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
@@ -427,4 +429,4 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                        rotation_deg=rotation_covered_deg(accepted.T_model_cam),
                        windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
                        evidence=evidence, single_window=accepted.camera,
-                       focal_std_rel=best.focal_std_rel)
+                       focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
