@@ -339,3 +339,16 @@ def test_a_window_contradicting_a_sharp_window_kept_before_it_needs_another_to_a
     assert tried == [0, 1] and cal.camera == TRUE and cal.evidence == "reprojection"
     cal, tried = _search([_window(nearly, yaw_deg=40.0), _window(TRUE, yaw_deg=50)], config=knob)
     assert tried == [0, 1] and cal.camera == TRUE and cal.evidence == "reprojection"
+
+
+def test_the_calibration_summary_carries_stage_2s_own_spread():
+    from app.pipeline.steps.calibrate import summary
+
+    window = _window(TRUE, error_px=0.2)
+    window.intrinsics_std = (1.2, 1.3, 0.8, 2.6, 1e-3, 2e-3)
+    window.focal_std_rel = 1.2 / TRUE.fx
+    cal, _ = _search([window])
+    assert cal.intrinsics_std == window.intrinsics_std
+    assert "fx ± 0.13 %, cx ± 0.8, cy ± 2.6 px" in summary(cal)
+    bare, _ = _search([_window(TRUE, error_px=0.2)])  # no covariance: nothing made up
+    assert "±" not in summary(bare)

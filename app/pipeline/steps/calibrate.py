@@ -269,7 +269,18 @@ def summary(calib: Calibration) -> str:
     return (f"self-calibrated on frames {first}-{end - 1} ({calib.evidence}): "
             f"{calib.n_registered}/{calib.n_images} registered, "
             f"{calib.reprojection_error_px:.2f} px; fx {c.fx:.1f}, fy {c.fy:.1f}, "
-            f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
+            f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}"
+            + _spread(calib.intrinsics_std, c.fx))
+
+
+def _spread(std: tuple[float, ...], fx: float) -> str:
+    """Stage 2's own standard deviations of fx and the principal point, where it gave them. They
+    say which intrinsics the frames pinned down and which they did not; the errors measured on
+    the corpus run larger than them (``bench corpus`` records both)."""
+    if len(std) < 4 or not np.all(np.isfinite(std[:4])) or std[0] > fx:
+        return ""
+    return (f" (stage 2's covariance: fx ± {100 * std[0] / fx:.2f} %, "
+            f"cx ± {std[2]:.1f}, cy ± {std[3]:.1f} px)")
 
 
 def _trial(window: CalibrationWindow, res: WindowResult) -> str:
@@ -278,7 +289,7 @@ def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
               if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
     if spread and len(res.intrinsics_std) >= 4 and np.all(np.isfinite(res.intrinsics_std[2:4])):
-        spread += (f", cx ± {res.intrinsics_std[2]:.1f}, cy ± {res.intrinsics_std[3]:.1f} px")
+        spread += f", cx ± {res.intrinsics_std[2]:.1f}, cy ± {res.intrinsics_std[3]:.1f} px"
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
