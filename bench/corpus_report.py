@@ -27,6 +27,10 @@ HALVES = ("tuning", "check")
 # The acceptance bar of a calibration, and what counts as accepted but wrong.
 BAR = {"fx_pct": 1.0, "fy_pct": 1.0, "cx_px": 4.0, "cy_px": 4.0, "k1_pct": 5.0}
 WRONG_FOCAL_PCT = 3.0
+# Not the bar: 5 % of a near-zero k1 (-0.02, say) is 0.001, a tenth of a pixel at the corners of
+# most of the corpus's lenses; beside the bar the report also counts k1 within this absolute
+# error, so a reader sees which bar misses are of that kind.
+K1_ABS_FLOOR = 0.005
 STEEP_TURN_DEG, GENTLE_TURN_DEG = 45.0, 30.0
 # distortion_px: metrics.true_distortion_error_px, reported beside the bar (not part of it).
 ERROR_KEYS = ("fx_pct", "fy_pct", "cx_px", "cy_px", "k1_pct", "k2_pct", "distortion_px")
@@ -71,6 +75,31 @@ def meets_bar(r: dict, keys: Iterable[str] = tuple(BAR)) -> bool:
     return all(error(r, k) is not None and abs(error(r, k)) <= BAR[k] for k in keys)
 
 
+def meets_bar_k1_floor(r: dict) -> bool:
+    """The bar, with k1 also passing when within K1_ABS_FLOOR of the truth."""
+    k1_abs = error(r, "k1_abs")
+    k1_ok = meets_bar(r, ("k1_pct",)) or (k1_abs is not None and abs(k1_abs) <= K1_ABS_FLOOR)
+    return k1_ok and meets_bar(r, ("fx_pct", "fy_pct", "cx_px", "cy_px"))
+
+
+def sigma_ratios(records: list[dict]) -> dict[str, list[float]]:
+    """|error| / stage 2's own sigma for fx, cx and cy of each accepted record that has it: how
+    far its covariance understates the real error (1: honest)."""
+    out: dict[str, list[float]] = {"fx": [], "cx": [], "cy": []}
+    for r in records:
+        cal = r.get("calibration") or {}
+        std = cal.get("intrinsics_std") or []
+        if outcome(r) != "accepted" or len(std) < 4 or not all(map(math.isfinite, std[:4])):
+            continue
+        fx_pct = error(r, "fx_pct")
+        if fx_pct is not None and std[0] > 0:
+            out["fx"].append(abs(fx_pct) / (100 * std[0] / cal["camera"]["fx"]))
+        for k, i in (("cx", 2), ("cy", 3)):
+            if (e := error(r, f"{k}_px")) is not None and std[i] > 0:
+                out[k].append(abs(e) / std[i])
+    return out
+
+
 def is_steep(r: dict) -> bool:
     return (r["params"].get("max_turn_deg") or 0.0) >= STEEP_TURN_DEG
 
@@ -105,7 +134,11 @@ def half_summary(records: list[dict]) -> dict:
         "within": {"fx, fy ≤ 1 %": sum(meets_bar(r, ("fx_pct", "fy_pct")) for r in accepted),
                    "cx, cy ≤ 4 px": sum(meets_bar(r, ("cx_px", "cy_px")) for r in accepted),
                    "k1 ≤ 5 %": sum(meets_bar(r, ("k1_pct",)) for r in accepted),
-                   "all (the bar)": sum(meets_bar(r) for r in accepted)},
+                   "all (the bar)": sum(meets_bar(r) for r in accepted),
+                   f"all, k1 also within ±{K1_ABS_FLOOR:g} (not the bar)":
+                       sum(meets_bar_k1_floor(r) for r in accepted)},
+        "sigma_ratio": {k: (quantile(v, 50), quantile(v, 90))
+                        for k, v in sigma_ratios(records).items()},
         "wrong": sorted(r["name"] for r in accepted if is_wrong(r)),
         "calib_s_median": quantile((r.get("calib_s") for r in records), 50),
         "calib_s_p90": quantile((r.get("calib_s") for r in records), 90),
@@ -311,6 +344,9 @@ def summary_rows(report: dict) -> list[list[str]]:
     for label in s[0]["within"]:
         rows.append([f"accepted with {label}",
                      *(f"{x['within'][label]}/{x['accepted']}" for x in s)])
+    rows.append(["\\|error\\| / stage 2's own sigma, fx, cx, cy: median / p90",
+                 *(", ".join(f"{fmt(a, 1)} / {fmt(b, 1)}" for a, b in x["sigma_ratio"].values())
+                   for x in s)])
     rows += [[f"accepted but > {WRONG_FOCAL_PCT:.0f} % off in fx or fy",
               *(f"**{len(x['wrong'])}**" + (f": {', '.join(x['wrong'])}" if x["wrong"] else "")
                 for x in s)],

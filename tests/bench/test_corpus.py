@@ -130,6 +130,23 @@ def test_quantiles_over_accepted_calibrations():
     assert cr.quantile([None, float("nan"), 1.0, 3.0], 50) == pytest.approx(2.0)
 
 
+def test_near_zero_k1_and_stage_2s_own_sigma_are_reported_beside_the_bar():
+    small_k1 = _record("t5", "tuning", fx_pct=0.2, k1_pct=20.0)  # k1_abs 0.004: under the floor
+    big_k1 = _record("t6", "tuning", fx_pct=0.2, k1_pct=20.0)
+    big_k1["calibration"]["errors"]["k1_abs"] = 0.04
+    for r, std in ((small_k1, [2.0, 2.0, 0.5, 2.0, 1e-3, 1e-3]), (big_k1, [])):
+        r["calibration"].update(camera={**TRUE}, intrinsics_std=std)
+    s = cr.half_summary([small_k1, big_k1])
+    assert s["within"]["all (the bar)"] == 0
+    assert s["within"]["all, k1 also within ±0.005 (not the bar)"] == 1
+    # fx 0.2 % off with sigma 0.2 %, cx 1 px with 0.5, cy 1 px with 2: only t5 has a covariance.
+    assert s["sigma_ratio"] == {"fx": (pytest.approx(1.0), pytest.approx(1.0)),
+                                "cx": (pytest.approx(2.0), pytest.approx(2.0)),
+                                "cy": (pytest.approx(0.5), pytest.approx(0.5))}
+    table = cr.table_summary(cr.build_report({}, [small_k1, big_k1]))
+    assert "| \\|error\\| / stage 2's own sigma, fx, cx, cy: median / p90 | 1.0 / 1.0, 2.0" in table
+
+
 def test_sign_rows_only_on_full_runs():
     records = _records()
     records[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "n_mappable_found": 5, "n_false": 1,
