@@ -194,3 +194,15 @@ def test_process_success_writes_signs_and_report(tmp_path, capsys, bundle, monke
     assert [f["properties"]["track_id"] for f in features] == ["7"]
     report = json.loads((tmp_path / "out" / "signs.report.json").read_text())
     assert report["calibration"]["source"] == "given" and len(report["signs"]) == 1
+
+
+def test_the_process_report_gives_stage_2s_own_spread_with_none_where_unknown():
+    from app.commands.process_report import report
+
+    camera = CameraModel(64, 48, 50.0, 51.0, 32.0, 24.0)
+    calib = Calibration(camera, "self", intrinsics_std=(0.5, 0.6, 0.8, float("nan"), 1e-3, 2e-3))
+    out = report(JourneyResult(calib, [], [], {}))
+    assert out["calibration"]["stage2_std"] == {"fx": 0.5, "fy": 0.6, "cx": 0.8, "cy": None,
+                                                "k1": 1e-3, "k2": 2e-3}
+    given = report(JourneyResult(Calibration(camera, "given"), [], [], {}))
+    assert given["calibration"]["stage2_std"] == {}

@@ -3,11 +3,12 @@ is ``app.commands.process``)."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Sequence
 
-from app.pipeline.types import JourneyResult, StageReport
+from app.pipeline.types import INTRINSICS_STD, JourneyResult, StageReport
 
 
 def _progress_printer(stream=sys.stderr):
@@ -29,7 +30,11 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                         "stage1": cal.stage1.params() if cal.stage1 else None,
                         "n_images": cal.n_images, "n_registered": cal.n_registered,
                         "reprojection_error_px": cal.reprojection_error_px,
-                        "rotation_deg": cal.rotation_deg, "windows": cal.windows},
+                        "rotation_deg": cal.rotation_deg, "windows": cal.windows,
+                        # Stage 2's own standard deviations (None: not given). Real errors on the
+                        # corpus run 2-3x these at the median (docs/benchmarks.md).
+                        "stage2_std": {k: (v if math.isfinite(v) else None)
+                                       for k, v in zip(INTRINSICS_STD, cal.intrinsics_std)}},
         "timings_s": result.timings_s,
         "signs": [{"track_id": s.track_id, "class": s.cls, "lat": s.lat_deg, "lon": s.lon_deg,
                    "alt_m": s.alt_m, "std_m": s.std_m, "r95_h_m": s.r95_h_m,

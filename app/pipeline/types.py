@@ -139,6 +139,10 @@ class Journey:
         return [f.frame_id for f in self.frames]
 
 
+# The intrinsics ``Calibration.intrinsics_std`` gives stage 2's standard deviations of, in order.
+INTRINSICS_STD = ("fx", "fy", "cx", "cy", "k1", "k2")
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Outcome of self-calibration (or of reusing a stored calibration).
@@ -162,7 +166,8 @@ class Calibration:
     evidence: str = ""
     single_window: CameraModel | None = None  # the accepted window's own camera, before "+joint"
     focal_std_rel: float = float("nan")  # stage 2's sigma(fx) / fx from its covariance
-    # Stage 2's sigma of fx, fy, cx, cy (px), k1, k2 from its covariance; () when unknown.
+    # Stage 2's sigma of each of INTRINSICS_STD (px for fx, fy, cx, cy) from its covariance;
+    # () when unknown.
     intrinsics_std: tuple[float, ...] = ()
 
 

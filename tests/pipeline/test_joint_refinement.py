@@ -70,7 +70,8 @@ def test_two_windows_refined_jointly_recover_the_camera_from_a_wrong_start():
 
 def test_stage_2_gives_each_intrinsic_a_standard_deviation_that_covers_its_error():
     pycolmap = pytest.importorskip("pycolmap")
-    from app.pipeline.colmap.refine import INTRINSICS_STD, refine_all_intrinsics
+    from app.pipeline.colmap.refine import refine_all_intrinsics
+    from app.pipeline.types import INTRINSICS_STD
 
     rng = np.random.default_rng(5)
     rec = _window(pycolmap, rng, 0.0, noise_px=0.5)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.pipeline.colmap import presets
+from app.pipeline.types import INTRINSICS_STD
 
 OPENCV_TANGENTIAL = [6, 7]
 
@@ -100,13 +101,9 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     return std
 
 
-# What ``refine_all_intrinsics`` gives the standard deviations of, in this order: the OPENCV
-# parameters the tangent space keeps (p1, p2 are held).
-INTRINSICS_STD = ("fx", "fy", "cx", "cy", "k1", "k2")
-
-
 def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
-    """sigma of each of ``INTRINSICS_STD`` from COLMAP's covariance of the camera block."""
+    """sigma of each of ``INTRINSICS_STD`` from COLMAP's covariance of the camera block: the
+    OPENCV parameters its tangent space keeps, in that order (p1, p2 are held)."""
     std = np.full(len(INTRINSICS_STD), np.nan)
     cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
     if cov is None:

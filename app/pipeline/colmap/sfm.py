@@ -87,7 +87,7 @@ class WindowResult:
     # the windows' scales (``steps.align``).
     keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
     # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable),
-    # and its sigma of each of ``refine.INTRINSICS_STD`` (px for fx, fy, cx, cy).
+    # and its sigma of each of ``types.INTRINSICS_STD`` (px for fx, fy, cx, cy).
     focal_std_rel: float = float("nan")
     intrinsics_std: tuple[float, ...] = ()
     # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
