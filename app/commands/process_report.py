@@ -32,7 +32,8 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                         "reprojection_error_px": cal.reprojection_error_px,
                         "rotation_deg": cal.rotation_deg, "windows": cal.windows,
                         # Stage 2's own standard deviations (None: not given). Real errors on the
-                        # corpus run 2-3x these at the median (docs/benchmarks.md).
+                        # corpus run about 2-3x these at the median, 4-11x at p90
+                        # (bench/results/2026-11-28-calib-spread.md).
                         "stage2_std": {k: (v if math.isfinite(v) else None)
                                        for k, v in zip(INTRINSICS_STD, cal.intrinsics_std)}},
         "timings_s": result.timings_s,
