@@ -270,26 +270,28 @@ def summary(calib: Calibration) -> str:
             f"{calib.n_registered}/{calib.n_images} registered, "
             f"{calib.reprojection_error_px:.2f} px; fx {c.fx:.1f}, fy {c.fy:.1f}, "
             f"cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}"
-            + _spread(calib.intrinsics_std, c.fx))
+            + (f" (stage 2's covariance: {spread})"
+               if (spread := _spread(calib.focal_std_rel, calib.intrinsics_std)) else ""))
 
 
-def _spread(std: tuple[float, ...], fx: float) -> str:
-    """Stage 2's own standard deviations of fx and the principal point, where it gave them. They
-    say which intrinsics the frames pinned down and which they did not; the errors measured on
-    the corpus run larger than them (``bench corpus`` records both)."""
-    if len(std) < 4 or not np.all(np.isfinite(std[:4])) or std[0] > fx:
+def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
+    """Stage 2's own standard deviations of fx and the principal point, where it gave them ("":
+    none, or a singular covariance). They say which intrinsics the frames pinned down and which
+    they did not; the errors measured on the corpus run larger than them (``bench corpus``
+    records both)."""
+    if not (np.isfinite(focal_std_rel) and focal_std_rel <= 1.0):
         return ""
-    return (f" (stage 2's covariance: fx ± {100 * std[0] / fx:.2f} %, "
-            f"cx ± {std[2]:.1f}, cy ± {std[3]:.1f} px)")
+    text = f"fx ± {100 * focal_std_rel:.2f} %"
+    if len(std) >= 4 and np.all(np.isfinite(std[2:4])):
+        text += f", cx ± {std[2]:.1f}, cy ± {std[3]:.1f} px"
+    return text
 
 
 def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     if res.error:
         return window.label
-    spread = (f", fx ± {100 * res.focal_std_rel:.2f} %"
-              if np.isfinite(res.focal_std_rel) and res.focal_std_rel <= 1.0 else "")
-    if spread and len(res.intrinsics_std) >= 4 and np.all(np.isfinite(res.intrinsics_std[2:4])):
-        spread += f", cx ± {res.intrinsics_std[2]:.1f}, cy ± {res.intrinsics_std[3]:.1f} px"
+    spread = _spread(res.focal_std_rel, res.intrinsics_std)
+    spread = f", {spread}" if spread else ""
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
