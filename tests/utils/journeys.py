@@ -31,3 +31,41 @@ def synthetic_journey(tmp_path_factory, name: str, **config) -> tuple[Path, dict
         if not (out / "truth.json").exists():
             write_bundle(cfg, out)
     return out / "bundle.zip", json.loads((out / "truth.json").read_text())
+
+
+def first_frames(bundle: Path, n_frames: int, out: Path) -> Path:
+    """``bundle`` (a rendered journey) cut to its first ``n_frames`` frames: their images, GPS
+    rows and detections, and the frame-less fix rows up to the first one after the last frame
+    (so that interpolation still covers it); the manifest as it was. Written to ``out``."""
+    import csv
+    import io
+    import zipfile
+
+    with zipfile.ZipFile(bundle) as src:
+        files = {name: src.read(name) for name in src.namelist()}
+    frames = sorted(n for n in files if n.startswith("frames/"))
+    kept = {Path(n).stem for n in frames[:n_frames]}
+    files = {n: data for n, data in files.items()
+             if not n.startswith("frames/") or Path(n).stem in kept}
+
+    def rows(name: str, keep) -> None:
+        table = list(csv.reader(io.StringIO(files[name].decode())))
+        out_rows = [table[0]] + [r for r in table[1:] if keep(dict(zip(table[0], r)))]
+        text = io.StringIO()
+        csv.writer(text, lineterminator="\n").writerows(out_rows)
+        files[name] = text.getvalue().encode()
+
+    if "gps.csv" in files:
+        table = list(csv.DictReader(io.StringIO(files["gps.csv"].decode())))
+        t_end = max(float(r["timestamp_s"]) for r in table if r["frame"] in kept)
+        t_fix = min((float(r["timestamp_s"]) for r in table
+                     if not r["frame"] and float(r["timestamp_s"]) >= t_end), default=t_end)
+        rows("gps.csv", lambda r: r["frame"] in kept if r["frame"]
+             else float(r["timestamp_s"]) <= t_fix)
+    if "detections.csv" in files:
+        rows("detections.csv", lambda r: r["frame"] in kept)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as z:
+        for name, data in files.items():
+            z.writestr(name, data)
+    return out
