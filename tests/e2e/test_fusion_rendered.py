@@ -18,8 +18,8 @@ What is made cheap, and why it is still the real thing:
   of the journeys' camera_id -- the TRUE camera, as if an earlier journey had calibrated it -- and
   the pipeline runs with ``reuse_known_calibration``: exactly the path every later journey of a
   calibrated camera takes in production (``jobs.run_journey`` -> ``latest_calibration``).
-  Self-calibration through the service is covered by tests/e2e/test_default_stack.py and
-  test_real_stack.py.
+  Self-calibration through the service is covered by tests/e2e/test_default_stack.py
+  (test_real_stack.py seeds the calibration too).
 * 30 frames per journey (one ego-motion window of 15 images). (Cheaper went wrong when ego-motion
   still used SIFT: with 24 frames journey 1's window reconstructed badly (one sign, 22 m off);
   half-size images put three journeys' signs 16-19 m off.) The SIFT settings below were chosen
