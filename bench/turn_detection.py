@@ -17,7 +17,7 @@ variant need render and run only them (``bench/results/2026-11-27-rdp-tolerance-
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,13 +34,15 @@ GENTLE_DEG = 30.0  # ... and one whose largest is under this must not find a tur
 
 @dataclass(frozen=True)
 class JourneyTrack:
-    """One journey's per-frame metric GPS ``xy_m`` (N, 2), ``timestamp_s`` (N,) and truth."""
+    """One journey's per-frame metric GPS ``xy_m`` (N, 2), ``timestamp_s`` (N,) and truth;
+    ``gps_noise_m``: its fixes' white noise as the pipeline measures it."""
 
     name: str
     half: str
     true_largest_deg: float
     xy_m: np.ndarray
     timestamp_s: np.ndarray
+    gps_noise_m: float | None = None
 
 
 def journey_track(seed: int) -> JourneyTrack:
@@ -52,18 +54,19 @@ def journey_track(seed: int) -> JourneyTrack:
     origin = frame_at(float(frames.lat_deg[0]), float(frames.lon_deg[0]), None)
     xy_m = origin.to_local(frames.lat_deg, frames.lon_deg, None)[:, :2]
     _, largest = rotation_covered(j.T_world_cam[frames.kept])
-    return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s)
+    return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s,
+                        replace(frames, fixes=fixes).noise_m)
 
 
 def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:
     """Rotation (deg) of the largest turn window the plan would find on ``track``."""
-    found, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config)
+    found, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
     return max((w.rotation_deg for w in found), default=0.0)
 
 
 def candidate_frames(track: JourneyTrack, config: PipelineConfig) -> list[tuple[int, ...]]:
     """The frames of each calibration candidate window the plan would build on ``track``."""
-    _, windows = turns_and_candidates(track.xy_m, track.timestamp_s, config)
+    _, windows = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
     return [tuple(int(i) for i in w.frame_idx) for w in windows]
 
 

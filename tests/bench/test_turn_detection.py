@@ -1,9 +1,12 @@
 """``signmap bench turns``: the turn finder against the truth, on a corpus journey drawn without
 its pixels."""
 
+from dataclasses import replace
+
 import pytest
 
 from app.pipeline.config import PipelineConfig
+from app.pipeline.steps.turns import find_turns, smooth_track
 from bench.cli import main
 from bench.turn_detection import (candidate_frames, journey_track, largest_found_deg, moved_table,
                                   parse_variant, table)
@@ -39,3 +42,34 @@ def test_a_variant_moves_the_candidate_frames_only_where_it_changes_the_plan():
                        PipelineConfig()).splitlines()
     assert "| fewer | tuning | 1: c0058 |" in rows
     assert "| judge | tuning | 0: – |" in rows
+
+
+@pytest.mark.parametrize("seed", [136, 304])
+def test_a_turn_the_smoothing_hides_at_the_end_of_the_track_is_found_on_a_second_look(seed):
+    # Tuning journeys c0136 (seed 128) and c0304 (seed 256, +125 deg at 18 m/s, ending just past
+    # its turn): the smoothing's padding with the end point pulls the last stretch in and finds
+    # no turn, so they were refused "no turn"; smoothed again with the ends continued along
+    # their heading, the plan finds it and puts calibration windows on it.
+    track = journey_track(seed)
+    cfg = PipelineConfig()
+    assert track.half == "tuning" and track.true_largest_deg >= 45.0
+    held = smooth_track(track.xy_m, track.timestamp_s, cfg.turn_smoothing_s,
+                        cfg.turn_smoothing_max_m)
+    assert find_turns(held, tolerance_m=cfg.rdp_tolerance_m,
+                      min_angle_deg=cfg.turn_min_angle_deg) == []
+    assert largest_found_deg(track, cfg) >= cfg.turn_min_angle_deg
+    assert candidate_frames(track, cfg)
+
+
+def test_a_short_journey_with_clean_gps_is_looked_at_unsmoothed_before_it_is_refused():
+    # Tuning journey c0130 (seed 128): 24 m with two stops round a 98 deg corner of radius 5 m,
+    # fixes with 0.2 m of white noise. A second of smoothing shrinks it until the corner is
+    # under the RDP tolerance, with the ends held or continued; fixes that clean need none.
+    track = journey_track(130)
+    cfg = PipelineConfig()
+    assert track.half == "tuning" and track.true_largest_deg >= 45.0
+    assert track.gps_noise_m is not None and track.gps_noise_m <= cfg.rdp_tolerance_m / 4
+    assert largest_found_deg(replace(track, gps_noise_m=None), cfg) == 0.0
+    assert largest_found_deg(replace(track, gps_noise_m=1.0), cfg) == 0.0  # phone-grade: no
+    assert 45.0 <= largest_found_deg(track, cfg) <= 150.0
+    assert candidate_frames(track, cfg)

@@ -189,7 +189,7 @@ def find_turns(xy_m: np.ndarray, *, tolerance_m: float = 2.0, min_angle_deg: flo
 
 
 def smooth_track(xy_m: np.ndarray, timestamp_s: np.ndarray, sigma_s: float,
-                 max_sigma_m: float | None = None) -> np.ndarray:
+                 max_sigma_m: float | None = None, *, extend_ends: bool = False) -> np.ndarray:
     """``xy_m`` (N, 2) smoothed by a Gaussian of ``sigma_s`` seconds, or of ``max_sigma_m`` metres
     of the journey's mean speed when that is shorter (frames may be unevenly timed: the kernel
     width is taken at their median interval).
@@ -201,7 +201,11 @@ def smooth_track(xy_m: np.ndarray, timestamp_s: np.ndarray, sigma_s: float,
     second is many metres: a 51 deg turn at 18 m/s on an 80 m journey (corpus c0058) flattened
     to 28 deg; ``max_sigma_m`` (None or 0: no cap) caps the width in metres, at the price of
     less smoothing of phone-grade noise at speed (``config.turn_smoothing_max_m``: at 6 m that
-    noise made turns on straight roads, at 12 m it did not)."""
+    noise made turns on straight roads, at 12 m it did not).
+
+    The kernel is padded with copies of the end points, which pulls the first and last 4 sigma
+    of track towards them; ``extend_ends`` pads with the track continued along its heading
+    instead (``_extend_linearly``), which keeps a turn in the journey's last second."""
     xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
     timestamp_s = np.asarray(timestamp_s, dtype=float)
     if sigma_s <= 0 or len(xy_m) < 3:
@@ -214,7 +218,36 @@ def smooth_track(xy_m: np.ndarray, timestamp_s: np.ndarray, sigma_s: float,
         mean_speed_mps = float(track_length_m(xy_m)[-1]) / duration_s
         if mean_speed_mps > 0:
             sigma_s = min(sigma_s, max_sigma_m / mean_speed_mps)
-    return gaussian_filter1d(xy_m, sigma_s / dt_s, axis=0, mode="nearest")
+    sigma_frames = sigma_s / dt_s
+    if not extend_ends:
+        return gaussian_filter1d(xy_m, sigma_frames, axis=0, mode="nearest")
+    pad = int(np.ceil(4.0 * sigma_frames))  # gaussian_filter1d's reach (truncate=4)
+    padded = _extend_linearly(xy_m, pad, pad)
+    return gaussian_filter1d(padded, sigma_frames, axis=0)[pad:pad + len(xy_m)]
+
+
+def _extend_linearly(xy_m: np.ndarray, pad: int, fit_n: int) -> np.ndarray:
+    """``xy_m`` (N, 2) with ``pad`` points added before and after, on the straight line fitted
+    to its first / last ``fit_n`` points and spaced as they are.
+
+    Padding a smoothing window with copies of the end point (``mode="nearest"``) pulls the last
+    second of track towards it: a turn in that second (a journey ending just past its corner,
+    c0304 of corpus seed 256, +125 deg at 18 m/s) left a stub shorter than the RDP tolerance and
+    the turn was not found. Continuing the track's heading keeps its length. The line is fitted
+    over the kernel's whole reach so that the end point's GPS noise does not steer it: fitted
+    over one sigma, straight phone-grade tracks (2.5 m at 1 Hz) showed 5 false turns in 180,
+    over four none."""
+    fit_n = min(fit_n, len(xy_m))
+    if pad <= 0 or fit_n < 2:
+        return xy_m
+    steps = np.arange(fit_n, dtype=float)
+    ends = []
+    for part, ahead in ((xy_m[:fit_n][::-1], -1), (xy_m[-fit_n:], 1)):
+        coef = np.polynomial.polynomial.polyfit(steps, part, 1)  # (2, 2): offset, slope per axis
+        x = fit_n - 1 + np.arange(1, pad + 1, dtype=float)
+        line = coef[0] + np.outer(x, coef[1])
+        ends.append(line[::-1] if ahead < 0 else line)
+    return np.concatenate([ends[0], xy_m, ends[1]])
 
 
 def track_length_m(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> np.ndarray:
