@@ -60,13 +60,13 @@ def journey_track(seed: int) -> JourneyTrack:
 
 def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:
     """Rotation (deg) of the largest turn window the plan would find on ``track``."""
-    found, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
+    found, _, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
     return max((w.rotation_deg for w in found), default=0.0)
 
 
 def candidate_frames(track: JourneyTrack, config: PipelineConfig) -> list[tuple[int, ...]]:
     """The frames of each calibration candidate window the plan would build on ``track``."""
-    _, windows = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
+    _, windows, _ = turns_and_candidates(track.xy_m, track.timestamp_s, config, track.gps_noise_m)
     return [tuple(int(i) for i in w.frame_idx) for w in windows]
 
 

@@ -6,6 +6,7 @@ from dataclasses import replace
 import pytest
 
 from app.pipeline.config import PipelineConfig
+from app.pipeline.steps.plan import turns_and_candidates
 from app.pipeline.steps.turns import find_turns, smooth_track
 from bench.cli import main
 from bench.turn_detection import (candidate_frames, journey_track, largest_found_deg, moved_table,
@@ -59,6 +60,8 @@ def test_a_turn_the_smoothing_hides_at_the_end_of_the_track_is_found_on_a_second
                       min_angle_deg=cfg.turn_min_angle_deg) == []
     assert largest_found_deg(track, cfg) >= cfg.turn_min_angle_deg
     assert candidate_frames(track, cfg)
+    look = turns_and_candidates(track.xy_m, track.timestamp_s, cfg, track.gps_noise_m)[2]
+    assert look == "found with the track's ends continued"  # what the turns stage reports
 
 
 def test_a_short_journey_with_clean_gps_is_looked_at_unsmoothed_before_it_is_refused():
@@ -73,3 +76,5 @@ def test_a_short_journey_with_clean_gps_is_looked_at_unsmoothed_before_it_is_ref
     assert largest_found_deg(replace(track, gps_noise_m=1.0), cfg) == 0.0  # phone-grade: no
     assert 45.0 <= largest_found_deg(track, cfg) <= 150.0
     assert candidate_frames(track, cfg)
+    look = turns_and_candidates(track.xy_m, track.timestamp_s, cfg, track.gps_noise_m)[2]
+    assert look.startswith("found on the unsmoothed track (fixes within 0.2")

@@ -38,16 +38,19 @@ class JourneyPlan:
     ego_step: int = 1
     ego_front_end: str = "klt"
     frame_spacing_m: float | None = None  # between consecutive frames at the cruise speed
+    # Which of turns_and_candidates' looks found ``turns`` ("": the first).
+    turns_look: str = ""
     # Tracks none of whose passes has the frames to triangulate: reported, never placed.
     too_short: tuple[RejectedSign, ...] = ()
 
 
 def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: PipelineConfig,
                          gps_noise_m: float | None = None
-                         ) -> tuple[list[TurnWindow], list[CalibrationWindow]]:
-    """The turns of the metric GPS track ``xy_m`` (N, 2) at the frames' ``timestamp_s`` (N,) and
-    the calibration candidate windows around them (before ``gps_rotation``); ``gps_noise_m``:
-    the fixes' white noise (m, per axis; ``gps_sigma_m``), None when unknown.
+                         ) -> tuple[list[TurnWindow], list[CalibrationWindow], str]:
+    """The turns of the metric GPS track ``xy_m`` (N, 2) at the frames' ``timestamp_s`` (N,), the
+    calibration candidate windows around them (before ``gps_rotation``) and which look found
+    them ("" for the first, else what the report should say); ``gps_noise_m``: the fixes' white
+    noise (m, per axis; ``gps_sigma_m``), None when unknown.
 
     The track is smoothed against phone-grade noise first (``turns.smooth_track``). A journey
     whose turns that hides is refused "no turn", so before that it gets two more looks, each
@@ -61,10 +64,12 @@ def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: Pipe
     - A short journey with stops (24-28 m, c0130 of seed 128, c0392 of seed 384) is shrunk by a
       second of smoothing until its turn is under the RDP tolerance. Clean fixes (white noise
       at most a quarter of the tolerance) need no smoothing: the third look takes them raw."""
-    looks = [(config.turn_smoothing_s, False), (config.turn_smoothing_s, True)]  # (sigma, ends)
+    looks = [(config.turn_smoothing_s, False, ""),  # (sigma, ends continued, what it says)
+             (config.turn_smoothing_s, True, "found with the track's ends continued")]
     if gps_noise_m is not None and gps_noise_m <= config.rdp_tolerance_m / 4:
-        looks.append((0.0, False))
-    for sigma_s, extend_ends in looks:
+        looks.append((0.0, False, f"found on the unsmoothed track (fixes within "
+                                  f"{gps_noise_m:.2f} m)"))
+    for sigma_s, extend_ends, look in looks:
         xy_track = turns.smooth_track(xy_m, timestamp_s, sigma_s, config.turn_smoothing_max_m,
                                       extend_ends=extend_ends)
         turn_windows = turns.find_turns(xy_track, tolerance_m=config.rdp_tolerance_m,
@@ -74,15 +79,15 @@ def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: Pipe
             break
     s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
     return turn_windows, calibrate.candidate_windows(
-        turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m))
+        turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m)), look
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                  known_camera: CameraModel | None = None) -> JourneyPlan:
     """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
     timestamp_s = np.array([f.timestamp_s for f in journey.frames])
-    turn_windows, calib_windows = turns_and_candidates(xyz_gps[:, :2], timestamp_s, config,
-                                                       gps_sigma_m(journey))
+    turn_windows, calib_windows, look = turns_and_candidates(xyz_gps[:, :2], timestamp_s,
+                                                             config, gps_sigma_m(journey))
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
     calib_windows = gps_rotation(calib_windows, xyz_gps, gps_sigma_m(journey), config)
@@ -108,7 +113,8 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                                           overlap=config.ego_window_overlap_frames,
                                           bridge_gap=config.ego_bridge_gap_frames)
     off_grid = ego_motion.off_grid_frames(tracks, ego_step, config.min_track_frames)
-    return JourneyPlan(turns=turn_windows, calib_windows=calib_windows, tracks=tracks,
+    return JourneyPlan(turns=turn_windows, turns_look=look, calib_windows=calib_windows,
+                       tracks=tracks,
                        ego_windows=ego_windows, off_grid=off_grid,
                        ego_frames=ego_motion.mapped_frames(ego_windows, ego_step, off_grid),
                        ego_step=ego_step, frame_spacing_m=spacing_m,
@@ -199,7 +205,8 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
                    for t in plan.turns]
     if plan.turns:
         summary = (f"{len(plan.turns)} turn(s) of at least {config.turn_min_angle_deg:g} deg: "
-                   + ", ".join(f"{t.angle_deg:+.0f} deg" for t in plan.turns))
+                   + ", ".join(f"{t.angle_deg:+.0f} deg" for t in plan.turns)
+                   + (f" ({plan.turns_look})" if plan.turns_look else ""))
     else:
         summary = f"no turn of at least {config.turn_min_angle_deg:g} deg on the GPS track"
     planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
