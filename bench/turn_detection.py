@@ -49,7 +49,8 @@ def journey_track(seed: int) -> JourneyTrack:
     cfg, params = draw_journey(seed)
     j = generate(cfg)
     t_fix = j.fix_timestamps_s
-    fixes = GpsFixes(t_fix, j.lat_deg, j.lon_deg, j.alt_m, NumberedLabels("fix", np.arange(len(t_fix))))
+    fixes = GpsFixes(t_fix, j.lat_deg, j.lon_deg, j.alt_m,
+                     NumberedLabels("fix", np.arange(len(t_fix))))
     frames = interpolate_to_frames(fixes, j.timestamps_s, j.frame_ids)
     origin = frame_at(float(frames.lat_deg[0]), float(frames.lon_deg[0]), None)
     xy_m = origin.to_local(frames.lat_deg, frames.lon_deg, None)[:, :2]

@@ -240,14 +240,13 @@ def _extend_linearly(xy_m: np.ndarray, pad: int, fit_n: int) -> np.ndarray:
     fit_n = min(fit_n, len(xy_m))
     if pad <= 0 or fit_n < 2:
         return xy_m
-    steps = np.arange(fit_n, dtype=float)
-    ends = []
-    for part, ahead in ((xy_m[:fit_n][::-1], -1), (xy_m[-fit_n:], 1)):
-        coef = np.polynomial.polynomial.polyfit(steps, part, 1)  # (2, 2): offset, slope per axis
-        x = fit_n - 1 + np.arange(1, pad + 1, dtype=float)
-        line = coef[0] + np.outer(x, coef[1])
-        ends.append(line[::-1] if ahead < 0 else line)
-    return np.concatenate([ends[0], xy_m, ends[1]])
+
+    def beyond(end_part: np.ndarray) -> np.ndarray:
+        """``pad`` points continuing ``end_part`` (fit_n, 2), ordered towards its last point."""
+        coef = np.polynomial.polynomial.polyfit(np.arange(fit_n), end_part, 1)  # (2, 2)
+        return coef[0] + np.outer(fit_n - 1 + np.arange(1, pad + 1), coef[1])
+
+    return np.concatenate([beyond(xy_m[:fit_n][::-1])[::-1], xy_m, beyond(xy_m[-fit_n:])])
 
 
 def track_length_m(xy_m: np.ndarray, *, tolerance_m: float = 2.0) -> np.ndarray:
