@@ -17,13 +17,14 @@ variant need render and run only them (``bench/results/2026-11-27-rdp-tolerance-
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from app.pipeline.bundle.gps import GpsFixes, NumberedLabels, interpolate_to_frames
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
+from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.steps.plan import turns_and_candidates
 from app.synth.draw import draw_journey, rotation_covered
 from app.synth.journey import generate
@@ -56,7 +57,7 @@ def journey_track(seed: int) -> JourneyTrack:
     xy_m = origin.to_local(frames.lat_deg, frames.lon_deg, None)[:, :2]
     _, largest = rotation_covered(j.T_world_cam[frames.kept])
     return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s,
-                        replace(frames, fixes=fixes).noise_m)
+                        white_noise_m(t_fix, j.lat_deg, j.lon_deg))
 
 
 def largest_found_deg(track: JourneyTrack, config: PipelineConfig) -> float:

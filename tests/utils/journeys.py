@@ -41,6 +41,8 @@ def first_frames(bundle: Path, n_frames: int, out: Path) -> Path:
     import io
     import zipfile
 
+    from tests.utils.bundle_factory import zip_bytes
+
     with zipfile.ZipFile(bundle) as src:
         files = {name: src.read(name) for name in src.namelist()}
     frames = sorted(n for n in files if n.startswith("frames/"))
@@ -65,7 +67,5 @@ def first_frames(bundle: Path, n_frames: int, out: Path) -> Path:
     if "detections.csv" in files:
         rows("detections.csv", lambda r: r["frame"] in kept)
     out.parent.mkdir(parents=True, exist_ok=True)
-    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as z:
-        for name, data in files.items():
-            z.writestr(name, data)
+    out.write_bytes(zip_bytes(files, zipfile.ZIP_STORED))
     return out

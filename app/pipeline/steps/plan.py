@@ -86,11 +86,12 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                  known_camera: CameraModel | None = None) -> JourneyPlan:
     """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
     timestamp_s = np.array([f.timestamp_s for f in journey.frames])
+    sigma_m = gps_sigma_m(journey)
     turn_windows, calib_windows, look = turns_and_candidates(xyz_gps[:, :2], timestamp_s,
-                                                             config, gps_sigma_m(journey))
+                                                             config, sigma_m)
     if known_camera is not None and config.reuse_known_calibration:
         calib_windows = []
-    calib_windows = gps_rotation(calib_windows, xyz_gps, gps_sigma_m(journey), config)
+    calib_windows = gps_rotation(calib_windows, xyz_gps, sigma_m, config)
     spacing_m = moving_spacing_m(xyz_gps, timestamp_s, journey.gps_noise_m)
     ego_step = frame_step(spacing_m, config.ego_frame_step, config.ego_max_spacing_m)
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
