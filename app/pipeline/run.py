@@ -336,7 +336,8 @@ def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config:
         calib = calibrate.self_calibrate(calib_windows, config, calibrate_window,
                                          hint=journey.camera_prior, width=journey.image_width,
                                          height=journey.image_height, on_candidate=on_candidate,
-                                         trials=entry.details, refine_jointly=refine_jointly)
+                                         trials=entry.details, refine_jointly=refine_jointly,
+                                         frame_names=[f.path.name for f in journey.frames])
     except PipelineError as exc:
         if known_camera is None:
             raise

@@ -297,6 +297,28 @@ def test_a_window_turning_less_than_the_gps_is_not_refused_for_it():
     assert cal.camera == TRUE
 
 
+def test_the_gps_check_compares_the_reconstruction_over_the_frames_the_gps_measured():
+    from dataclasses import replace
+
+    from app.pipeline.steps.calibrate import self_calibrate
+
+    # A window spanning its journey whole (c0392 of corpus seed 384): the GPS's chords cannot
+    # measure its first and last frames, and over the other 20 it turns 44 deg. The camera
+    # turns 80 deg over all 30 evenly, 52 of them over frames 5-24: within the bound of 54.
+    names = [f"{i:06d}.png" for i in range(30)]
+    window = replace(_windows_with_gps(1, 44.0, 2.3)[0], frame_idx=np.arange(30),
+                     gps_frame_idx=np.arange(5, 25))
+    result = _window(TRUE, yaw_deg=80.0)
+    trials: list[str] = []
+    cal = self_calibrate([window], PipelineConfig(), lambda w, start: result, width=1242,
+                         height=375, frame_names=names, trials=trials)
+    assert cal.camera == TRUE, trials
+    # Measured over every frame it would be refused, as before the GPS frames were named.
+    with pytest.raises(Exception, match="turns 80 deg where the GPS turns 44"):
+        self_calibrate([window], PipelineConfig(), lambda w, start: result, width=1242,
+                       height=375)
+
+
 def test_a_window_that_registered_few_of_its_frames_needs_another_to_agree():
     # Check-half c0155 (seed 128) was accepted alone on 12/19 registered at 0.29 px, fx -4.5 %.
     knob = PipelineConfig(calib_alone_min_registered_ratio=0.9)

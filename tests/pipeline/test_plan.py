@@ -71,3 +71,30 @@ def test_each_calibration_window_knows_how_far_the_gps_turns_over_it(turn_journe
     stated = replace(journey, gps_noise_m=None, gps_accuracy_m=1.5)
     assert plan.gps_sigma_m(stated) == pytest.approx(1.5 / 1.5096, rel=1e-3)
     assert plan.gps_sigma_m(replace(stated, gps_accuracy_m=None)) is None
+
+
+def test_the_gps_measures_a_window_only_where_its_chords_lie_on_the_track():
+    import numpy as np
+
+    from app.pipeline.steps.calibrate import CalibrationWindow
+
+    # 20 m straight, then a quarter circle of 10 m radius, where the journey ends: fixes every
+    # 0.5 m, no noise. The chord of a frame within 5 m of either end is cut short and its
+    # heading is the track's 2.5 m inside, so such frames are left out of the GPS's measure.
+    s = np.arange(0.0, 20.0 + np.pi / 2 * 10.0, 0.5)
+    angle = np.clip(s - 20.0, 0.0, None) / 10.0
+    xy = np.where((s <= 20.0)[:, None], np.column_stack([s, np.zeros_like(s)]),
+                  np.column_stack([20.0 + 10.0 * np.sin(angle), 10.0 - 10.0 * np.cos(angle)]))
+    xyz = np.column_stack([xy, np.zeros(len(s))])
+    window = CalibrationWindow(np.arange(len(s)), vertex=len(s) // 2)
+    out, = plan.gps_rotation([window], xyz, 0.3, PipelineConfig())
+    measured = out.gps_frame_idx
+    # (The track's length is measured along its simplification, a little short on the arc.)
+    assert 10 <= measured[0] <= 11 and len(s) - 14 <= measured[-1] < len(s) - 9
+    assert np.array_equal(measured, np.arange(measured[0], measured[-1] + 1))
+    # What the car turns over those frames: the heading at the last of them.
+    assert out.gps_rotation_deg == pytest.approx(np.degrees(angle[measured[-1]]), abs=1.5)
+    # Too short a journey for any whole chord: nothing measured, so nothing is checked.
+    short, = plan.gps_rotation([CalibrationWindow(np.arange(18), vertex=9)], xyz[:18], 0.3,
+                               PipelineConfig())
+    assert short.gps_frame_idx is None and np.isnan(short.gps_rotation_deg)

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -51,13 +51,15 @@ CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17, -1.0, 0.0)
 class CalibrationWindow:
     """One candidate: ``frame_idx`` (K,) sorted journey frame indices to map, around the turn
     whose RDP vertex is frame ``vertex``. ``gps_rotation_deg``: how far the GPS track turns over
-    those frames (``turns.chord_rotation_deg``), ``gps_rotation_std_deg`` its standard deviation
-    from the GPS noise; NaN where unknown (``plan.gps_rotation``)."""
+    the frames ``gps_frame_idx`` of them (``turns.chord_rotation_deg``; None: all),
+    ``gps_rotation_std_deg`` its standard deviation from the GPS noise; NaN where unknown
+    (``plan.gps_rotation``)."""
 
     frame_idx: np.ndarray
     vertex: int
     gps_rotation_deg: float = float("nan")
     gps_rotation_std_deg: float = float("nan")
+    gps_frame_idx: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -189,9 +191,10 @@ def judge_window(res: WindowResult, cfg: PipelineConfig, *,
     return _implausible(res.camera)
 
 
-def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult,
-                      cfg: PipelineConfig) -> str | None:
-    """Why the reconstruction turns further than the GPS allows, or None.
+def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult, cfg: PipelineConfig,
+                      frame_names: Sequence[str] | None = None) -> str | None:
+    """Why the reconstruction turns further than the GPS allows, or None. Both are measured over
+    the frames the GPS measured (``window.gps_frame_idx``, named by ``frame_names``).
 
     A focal length far too short opens every bearing, so the window's cameras turn further than
     the car did: a narrow lens with strong barrel distortion calibrated 38 % short (k1 -0.14 for
@@ -202,7 +205,12 @@ def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult,
     if not (cfg.calib_gps_rotation_check and np.isfinite(window.gps_rotation_deg)
             and np.isfinite(window.gps_rotation_std_deg)):
         return None
-    rotation = rotation_covered_deg(res.T_model_cam)
+    T_model_cam = res.T_model_cam
+    if window.gps_frame_idx is not None and frame_names is not None:
+        measured = {frame_names[i] for i in window.gps_frame_idx}
+        T_model_cam = T_model_cam[[k for k, name in enumerate(res.image_names)
+                                   if name in measured]]
+    rotation = rotation_covered_deg(T_model_cam)
     bound = window.gps_rotation_deg + max(cfg.calib_gps_rotation_min_slack_deg,
                                           cfg.calib_gps_rotation_sigmas
                                           * window.gps_rotation_std_deg)
@@ -366,14 +374,16 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    hint: CameraModel | None = None, width: int, height: int,
                    on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None,
                    trials: list[str] | None = None,
-                   refine_jointly: JointRefiner | None = None) -> Calibration:
+                   refine_jointly: JointRefiner | None = None,
+                   frame_names: Sequence[str] | None = None) -> Calibration:
     """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
     reason. ``map_window(window, start)`` maps the window's frames with free intrinsics from the
     camera ``start``. ``on_candidate(k, total, window)`` is called before the k-th is mapped;
     ``trials``, when given, gets one line per candidate tried: its frames, registration,
     reprojection error and whether it was accepted or why not (the stage's report).
     ``refine_jointly`` (used when ``calib_joint``) refines the accepted window together with
-    another; the joint camera replaces the single window's when it is plausible and fits."""
+    another; the joint camera replaces the single window's when it is plausible and fits.
+    ``frame_names``: the journey's image names, as ``map_window`` names registered images."""
     if not windows:
         raise no_turn_error(cfg)
     trials = [] if trials is None else trials
@@ -387,7 +397,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
         why = (judge_window(res, cfg, agreement_may_follow=True)
-               or _turns_beyond_gps(window, res, cfg))
+               or _turns_beyond_gps(window, res, cfg, frame_names))
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
