@@ -191,10 +191,23 @@ def judge_window(res: WindowResult, cfg: PipelineConfig, *,
     return _implausible(res.camera)
 
 
-def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult, cfg: PipelineConfig,
-                      frame_names: Sequence[str] | None = None) -> str | None:
-    """Why the reconstruction turns further than the GPS allows, or None. Both are measured over
-    the frames the GPS measured (``window.gps_frame_idx``, named by ``frame_names``).
+def _rotation_where_gps_measured(window: CalibrationWindow, res: WindowResult,
+                                frame_names: Sequence[str] | None) -> float:
+    """The reconstruction's rotation (deg) over the frames the GPS measured
+    (``window.gps_frame_idx``, named by ``frame_names``); over all registered ones where the
+    window names none."""
+    T_model_cam = res.T_model_cam
+    if window.gps_frame_idx is not None and frame_names is not None:
+        measured = {frame_names[i] for i in window.gps_frame_idx}
+        T_model_cam = T_model_cam[[k for k, name in enumerate(res.image_names)
+                                   if name in measured]]
+    return rotation_covered_deg(T_model_cam)
+
+
+def _turns_beyond_gps(window: CalibrationWindow, rotation: float,
+                      cfg: PipelineConfig) -> str | None:
+    """Why the reconstruction, turning ``rotation`` deg over the frames the GPS measured, turns
+    further than the GPS allows, or None.
 
     A focal length far too short opens every bearing, so the window's cameras turn further than
     the car did: a narrow lens with strong barrel distortion calibrated 38 % short (k1 -0.14 for
@@ -205,12 +218,6 @@ def _turns_beyond_gps(window: CalibrationWindow, res: WindowResult, cfg: Pipelin
     if not (cfg.calib_gps_rotation_check and np.isfinite(window.gps_rotation_deg)
             and np.isfinite(window.gps_rotation_std_deg)):
         return None
-    T_model_cam = res.T_model_cam
-    if window.gps_frame_idx is not None and frame_names is not None:
-        measured = {frame_names[i] for i in window.gps_frame_idx}
-        T_model_cam = T_model_cam[[k for k, name in enumerate(res.image_names)
-                                   if name in measured]]
-    rotation = rotation_covered_deg(T_model_cam)
     bound = window.gps_rotation_deg + max(cfg.calib_gps_rotation_min_slack_deg,
                                           cfg.calib_gps_rotation_sigmas
                                           * window.gps_rotation_std_deg)
@@ -295,7 +302,8 @@ def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     return text
 
 
-def _trial(window: CalibrationWindow, res: WindowResult) -> str:
+def _trial(window: CalibrationWindow, res: WindowResult, frame_names: Sequence[str] | None
+           ) -> str:
     if res.error:
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
@@ -304,6 +312,11 @@ def _trial(window: CalibrationWindow, res: WindowResult) -> str:
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
            if np.isfinite(window.gps_rotation_deg) else "")
+    if gps and window.gps_frame_idx is not None and len(window.gps_frame_idx) < len(
+            window.frame_idx):
+        gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f} over "
+               f"{len(window.gps_frame_idx)} of its frames, where it turns "
+               f"{_rotation_where_gps_measured(window, res, frame_names):.1f})")
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
@@ -396,20 +409,22 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
-        why = (judge_window(res, cfg, agreement_may_follow=True)
-               or _turns_beyond_gps(window, res, cfg, frame_names))
+        why = judge_window(res, cfg, agreement_may_follow=True)
+        why = why or _turns_beyond_gps(
+            window, _rotation_where_gps_measured(window, res, frame_names), cfg)
+        trial = _trial(window, res, frame_names)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
             reasons.append(f"{window.label}: {why}")
-            trials.append(f"{_trial(window, res)}: refused, {why}")
+            trials.append(f"{trial}: refused, {why}")
             continue
         weak = _why_not_alone(res, cfg)
         if weak is None:
             weak = _contradicts(res, good, cfg)
         if weak is None:
             chosen, evidence = [(window, res)], "reprojection"
-            trials.append(f"{_trial(window, res)}: accepted, under "
+            trials.append(f"{trial}: accepted, under "
                           f"{cfg.calib_accept_reprojection_px:g} px")
             break
         agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
@@ -421,7 +436,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
             chosen, evidence = agreeing + [(window, res)], "agreement"
             log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
-            trials.append(f"{_trial(window, res)}: accepted, agrees with "
+            trials.append(f"{trial}: accepted, agrees with "
                           f"{agreeing[0][0].label}")
             break
         good.append((window, res))
@@ -429,7 +444,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             # A start near the camera lets a later window register where the wide guess did
             # not; a wrong camera is no minimum of other frames, so they do not agree with it.
             start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
-        trials.append(f"{_trial(window, res)}: "
+        trials.append(f"{trial}: "
                       + (f"{weak}, " if weak else "") + "kept until another window agrees")
         reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
                        f"other window agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
