@@ -301,6 +301,7 @@ def test_the_gps_check_compares_the_reconstruction_over_the_frames_the_gps_measu
     from dataclasses import replace
 
     from app.pipeline.steps.calibrate import self_calibrate
+    from app.pipeline.types import PipelineError
 
     # A window spanning its journey whole (c0392 of corpus seed 384): the GPS's chords cannot
     # measure its first and last frames, and over the other 20 it turns 44 deg. The camera
@@ -315,7 +316,7 @@ def test_the_gps_check_compares_the_reconstruction_over_the_frames_the_gps_measu
     assert cal.camera == TRUE, trials
     assert "turns 80.0 deg (GPS 44 ± 2.3 over 20 of its frames, where it turns 52.4)" in trials[0]
     # Measured over every frame it would be refused, as before the GPS frames were named.
-    with pytest.raises(Exception, match="turns 80 deg where the GPS turns 44"):
+    with pytest.raises(PipelineError, match="turns 80 deg where the GPS turns 44"):
         self_calibrate([window], PipelineConfig(), lambda w, start: result, width=1242,
                        height=375)
 
