@@ -302,8 +302,9 @@ def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     return text
 
 
-def _trial(window: CalibrationWindow, res: WindowResult, frame_names: Sequence[str] | None
-           ) -> str:
+def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) -> str:
+    """One candidate's line; ``gps_turn_deg``: its reconstruction's turn over the frames the GPS
+    measured (``_rotation_where_gps_measured``)."""
     if res.error:
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
@@ -316,7 +317,7 @@ def _trial(window: CalibrationWindow, res: WindowResult, frame_names: Sequence[s
             window.frame_idx):
         gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f} over "
                f"{len(window.gps_frame_idx)} of its frames, where it turns "
-               f"{_rotation_where_gps_measured(window, res, frame_names):.1f})")
+               f"{gps_turn_deg:.1f})")
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
@@ -409,10 +410,10 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
-        why = judge_window(res, cfg, agreement_may_follow=True)
-        why = why or _turns_beyond_gps(
-            window, _rotation_where_gps_measured(window, res, frame_names), cfg)
-        trial = _trial(window, res, frame_names)
+        gps_turn_deg = _rotation_where_gps_measured(window, res, frame_names)
+        why = (judge_window(res, cfg, agreement_may_follow=True)
+               or _turns_beyond_gps(window, gps_turn_deg, cfg))
+        trial = _trial(window, res, gps_turn_deg)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:
