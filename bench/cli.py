@@ -142,6 +142,35 @@ def _add_turns_parser(bench_sub) -> None:
     t.set_defaults(func=run_turns_command)
 
 
+def run_gps_draws_command(args) -> int:
+    from pydantic import ValidationError
+
+    from bench.gps_draws import run
+
+    try:
+        print(run(args.journey, args.draws, args.variant or [], args.cache))
+    except (ValueError, ValidationError) as exc:
+        raise SystemExit(f"signmap bench gps-draws: {exc}") from exc
+    return 0
+
+
+def _add_gps_draws_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "gps-draws", help="a suite journey's sign errors over fresh draws of its GPS noise, "
+        "variants compared draw by draw",
+        description="Reconstructs a suite journey once per variant with its true camera, then "
+        "georeferences it under the same fresh draws of its GPS noise model and prints, per "
+        "variant, the sign errors' distribution over the draws and the paired difference to "
+        "the defaults: one draw's bias decides a single run's absolute error.")
+    g.add_argument("--cache", type=Path, default=BENCH_DIR / "cache",
+                   help="rendered synthetic journeys, reused between runs")
+    g.add_argument("--journey", default="loop-300", help="a suite journey (default loop-300)")
+    g.add_argument("--draws", type=int, default=30, help="fresh GPS draws (default 30)")
+    g.add_argument("--variant", action="append", metavar="NAME:KNOB=VALUE,...",
+                   help="a variant besides the defaults (repeatable)")
+    g.set_defaults(func=run_gps_draws_command)
+
+
 def run_gps_scale_command(args) -> int:
     from bench.gps_scale import run
 
@@ -359,6 +388,7 @@ def add_parsers(sub) -> None:
     _add_corpus_parser(bench_sub)
     _add_turns_parser(bench_sub)
     _add_gps_scale_parser(bench_sub)
+    _add_gps_draws_parser(bench_sub)
     _add_gps_focal_parser(bench_sub)
     _add_pose_error_parser(bench_sub)
     _add_real_ego_parser(bench_sub)
