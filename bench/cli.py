@@ -148,7 +148,7 @@ def run_gps_draws_command(args) -> int:
     from bench.gps_draws import run
 
     try:
-        print(run(args.journey, args.draws, args.variant or [], args.cache))
+        print(run(args.journey, args.draws, args.variant or [], args.cache, args.seed))
     except (ValueError, ValidationError) as exc:
         raise SystemExit(f"signmap bench gps-draws: {exc}") from exc
     return 0
@@ -165,7 +165,11 @@ def _add_gps_draws_parser(bench_sub) -> None:
     g.add_argument("--cache", type=Path, default=BENCH_DIR / "cache",
                    help="rendered synthetic journeys, reused between runs")
     g.add_argument("--journey", default="loop-300", help="a suite journey (default loop-300)")
-    g.add_argument("--draws", type=int, default=30, help="fresh GPS draws (default 30)")
+    g.add_argument("--draws", type=int, default=30,
+                   help="fresh GPS draws per journey (default 30)")
+    g.add_argument("--seed", type=int, action="append",
+                   help="the journey re-seeded: another world and other noise of the same kind "
+                   "(repeatable: their draws are pooled)")
     g.add_argument("--variant", action="append", metavar="NAME:KNOB=VALUE,...",
                    help="a variant besides the defaults (repeatable)")
     g.set_defaults(func=run_gps_draws_command)

@@ -82,21 +82,32 @@ def with_gps(journey: Journey, recon, drawn: DrawnGps, config: PipelineConfig):
 METRICS = ("abs_median_m", "abs_mean_m", "rel_mean_m")
 
 
-def draws_of_variant(name: str, draws: int, knobs: dict, cache_dir: Path) -> list[dict]:
+def suite_spec(name: str, seed: int | None = None):
+    """Suite journey ``name``; with ``seed``, the same kind of journey in another world and with
+    other noise (its ``SynthConfig`` seed and world seed), named ``<name>-s<seed>``."""
+    from bench.suite import full_suite, quick_suite
+
+    specs = {s.name: s for s in quick_suite() + full_suite()}
+    if name not in specs:
+        raise ValueError(f"no suite journey {name!r} (one of {', '.join(specs)})")
+    spec = specs[name]
+    if seed is None:
+        return spec
+    return replace(spec, name=f"{name}-s{seed}",
+                   synth=spec.synth.replace(seed=seed, world_seed=seed))
+
+
+def draws_of_variant(spec, draws: int, knobs: dict, cache_dir: Path) -> list[dict]:
     """Per draw (k = -1: the journey's own GPS, then 0 .. draws - 1) the sign summary of suite
-    journey ``name`` reconstructed once with the true camera and ``knobs``."""
+    journey ``spec`` (``suite_spec``) reconstructed once with the true camera and ``knobs``."""
     from app.pipeline.bundle import read_bundle
     from app.pipeline.run import georeference, reconstruct
     from app.pipeline.types import CameraModel
     from bench.evaluate import truth_frame
     from bench.metrics import evaluate_result
     from bench.corpus import pipeline_config
-    from bench.suite import ensure_journey, full_suite, quick_suite
+    from bench.suite import ensure_journey
 
-    specs = {s.name: s for s in quick_suite() + full_suite()}
-    if name not in specs:
-        raise ValueError(f"no suite journey {name!r} (one of {', '.join(specs)})")
-    spec = specs[name]
     bundle, truth = ensure_journey(spec, cache_dir)
     cam = truth["camera"]
     camera = CameraModel.from_params(cam["width"], cam["height"], cam)
@@ -114,29 +125,34 @@ def draws_of_variant(name: str, draws: int, knobs: dict, cache_dir: Path) -> lis
                              DRAW_SEED0 + k)
             j, r = with_gps(journey, recon, drawn, config)
         signs = evaluate_result(georeference(j, r, config), truth)["signs"]
-        rows.append({"draw": k, "n_signs": signs["n_signs"], "n_false": signs["n_false"],
-                     **{m: signs[m] for m in METRICS}})
+        rows.append({"journey": spec.name, "draw": k, "n_signs": signs["n_signs"],
+                     "n_false": signs["n_false"], **{m: signs[m] for m in METRICS}})
     return rows
 
 
 def table(name: str, results: dict[str, list[dict]]) -> str:
-    """Markdown: per variant and metric, the mean / median / p90 over the fresh draws, the
-    suite's own draw, and the mean paired difference to the first variant (± its standard
-    error) with the number of draws where the variant is lower."""
+    """Markdown: per variant and metric, the mean / median / p90 over the fresh draws (of every
+    journey), the suite's own draw (the mean over journeys), and the mean paired difference to
+    the first variant (± its standard error) with the number of draws where the variant is
+    lower."""
     base = next(iter(results))
-    fresh = {v: [r for r in rows if r["draw"] >= 0] for v, rows in results.items()}
-    lines = [f"{name}, true camera: sign errors (m) over {len(fresh[base])} fresh GPS draws",
+    fresh = {v: sorted((r for r in rows if r["draw"] >= 0), key=lambda r: (r["journey"], r["draw"]))
+             for v, rows in results.items()}
+    journeys = sorted({r["journey"] for r in fresh[base]})
+    lines = [f"{name}, true camera: sign errors (m) over {len(fresh[base])} fresh GPS draws"
+             + (f" of {len(journeys)} journeys ({', '.join(journeys)})" if len(journeys) > 1
+                else ""),
              "", f"| variant | signs placed | false | metric | mean | median | p90 | own draw | "
              f"vs {base}: mean diff ± se | lower in |", "| --- " * 10 + "|"]
     for v, rows in fresh.items():
-        own = next(r for r in results[v] if r["draw"] < 0)
+        own = [r for r in results[v] if r["draw"] < 0]
         n_signs = [r["n_signs"] for r in rows]
         placed = f"{min(n_signs)}-{max(n_signs)}"
         false = str(sum(r["n_false"] for r in rows))
         for m in METRICS:
             x = np.array([r[m] for r in rows], float)
             cells = [v, placed, false, m, f"{x.mean():.3f}", f"{np.median(x):.3f}",
-                     f"{np.percentile(x, 90):.3f}", f"{own[m]:.3f}"]
+                     f"{np.percentile(x, 90):.3f}", f"{np.mean([r[m] for r in own]):.3f}"]
             if v == base:
                 cells += ["–", "–"]
             else:
@@ -147,7 +163,8 @@ def table(name: str, results: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
-def run(name: str, draws: int, variants: list[str], cache_dir: Path) -> str:
+def run(name: str, draws: int, variants: list[str], cache_dir: Path,
+        seeds: list[int] | None = None) -> str:
     from bench.corpus import pipeline_config
     from bench.turn_detection import parse_variant
 
@@ -158,6 +175,8 @@ def run(name: str, draws: int, variants: list[str], cache_dir: Path) -> str:
         v, knobs = parse_variant(text)
         pipeline_config(knobs)  # a bad knob fails now, not after the first reconstruction
         configs[v] = knobs  # strings: the config's validation converts them
-    return table(name, {v: draws_of_variant(name, draws, knobs, cache_dir)
+    specs = [suite_spec(name, s) for s in seeds] if seeds else [suite_spec(name)]
+    return table(name, {v: [row for spec in specs
+                            for row in draws_of_variant(spec, draws, knobs, cache_dir)]
                         for v, knobs in configs.items()})
 

@@ -49,10 +49,10 @@ def test_only_per_frame_gps_can_be_drawn_again():
         draw_gps(_path(), SynthConfig(gps_rate_hz=1.0), TRUTH_FRAME, RECON_FRAME, seed=0)
 
 
-def _rows(abs_median):
-    own = {"draw": -1, "n_signs": 5, "n_false": 0, "abs_median_m": 9.0, "abs_mean_m": 9.0,
+def _rows(abs_median, journey="loop-300"):
+    own = {"journey": journey, "draw": -1, "n_signs": 5, "n_false": 0, "abs_median_m": 9.0, "abs_mean_m": 9.0,
            "rel_mean_m": 9.0}
-    return [own] + [{"draw": k, "n_signs": 4 + k % 2, "n_false": 0, "abs_median_m": v,
+    return [own] + [{"journey": journey, "draw": k, "n_signs": 4 + k % 2, "n_false": 0, "abs_median_m": v,
                      "abs_mean_m": v, "rel_mean_m": v} for k, v in enumerate(abs_median)]
 
 
@@ -63,6 +63,26 @@ def test_the_table_pairs_each_variants_draws_with_the_defaults():
     assert rows[0] == ("| w80 | 4-5 | 0 | abs_median_m | 0.350 | 0.400 | 0.440 | 9.000 | "
                        "-0.050 ± 0.050 | 2/3 |")
     assert "over 3 fresh GPS draws" in text
+
+
+def test_draws_of_several_journeys_are_pooled_and_paired_journey_by_journey():
+    base = _rows([0.3, 0.4], "a") + _rows([0.5, 0.6], "b")
+    # The variant's rows arrive in another order: pairing must follow (journey, draw).
+    variant = list(reversed(_rows([0.2, 0.5], "a"))) + _rows([0.5, 0.5], "b")
+    text = table("long-1000", {"defaults": base, "x": variant})
+    assert "over 4 fresh GPS draws of 2 journeys (a, b)" in text
+    row = next(line for line in text.splitlines() if line.startswith("| x |"))
+    assert row.endswith("| -0.025 ± 0.048 | 2/4 |")
+
+
+def test_a_reseeded_suite_journey_is_the_same_kind_in_another_world():
+    from bench.gps_draws import suite_spec
+
+    spec, other = suite_spec("long-1000"), suite_spec("long-1000", 12)
+    assert other.name == "long-1000-s12"
+    assert (other.synth.seed, other.synth.world_seed) == (12, 12) != (spec.synth.seed,
+                                                                      spec.synth.world_seed)
+    assert other.synth.replace(seed=spec.synth.seed, world_seed=spec.synth.world_seed) == spec.synth
 
 
 def test_a_bad_knob_or_journey_is_refused_before_anything_is_reconstructed(tmp_path):
