@@ -11,8 +11,9 @@ variant: ``reuse_known_calibration``), then georeferences each reconstruction un
 ``SynthConfig`` sigmas, seeds ``DRAW_SEED0 + k``), so variants meet the same draws and are
 compared pair by pair. Each variant is reconstructed once, so a difference also holds one
 sample of COLMAP's run-to-run variation (two threads): a variant changing nothing differed from
-the defaults by 0.001 m in absolute and 0.002 m in relative error (loop-300). Only journeys with one GPS position per frame (``gps_rate_hz`` None, as
-every suite journey) can be drawn again.
+the defaults by 0.001 m in absolute and 0.002 m in relative error (loop-300). Only journeys
+with one GPS position per frame (``gps_rate_hz`` None, as every suite journey) can be drawn
+again.
 
 Frames: ``true_enu`` is the truth's ENU frame (``bench.evaluate.truth_frame``); a redrawn fix
 goes through WGS84 into the reconstruction's own frame (``Reconstruction.origin``), as the bundle
@@ -103,9 +104,9 @@ def draws_of_variant(spec, draws: int, knobs: dict, cache_dir: Path) -> list[dic
     from app.pipeline.bundle import read_bundle
     from app.pipeline.run import georeference, reconstruct
     from app.pipeline.types import CameraModel
+    from bench.corpus import pipeline_config
     from bench.evaluate import truth_frame
     from bench.metrics import evaluate_result
-    from bench.corpus import pipeline_config
     from bench.suite import ensure_journey
 
     bundle, truth = ensure_journey(spec, cache_dir)
@@ -136,8 +137,8 @@ def table(name: str, results: dict[str, list[dict]]) -> str:
     the first variant (± its standard error) with the number of draws where the variant is
     lower."""
     base = next(iter(results))
-    fresh = {v: sorted((r for r in rows if r["draw"] >= 0), key=lambda r: (r["journey"], r["draw"]))
-             for v, rows in results.items()}
+    fresh = {v: sorted((r for r in rows if r["draw"] >= 0),
+                       key=lambda r: (r["journey"], r["draw"])) for v, rows in results.items()}
     journeys = sorted({r["journey"] for r in fresh[base]})
     lines = [f"{name}, true camera: sign errors (m) over {len(fresh[base])} fresh GPS draws"
              + (f" of {len(journeys)} journeys ({', '.join(journeys)})" if len(journeys) > 1
