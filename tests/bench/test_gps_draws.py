@@ -1,4 +1,5 @@
-"""``signmap bench gps-draws``: fresh draws of a suite journey's GPS noise, compared draw by draw."""
+"""``signmap bench gps-draws``: fresh draws of a suite journey's GPS noise, compared draw by
+draw."""
 
 from dataclasses import replace
 
@@ -50,10 +51,11 @@ def test_only_per_frame_gps_can_be_drawn_again():
 
 
 def _rows(abs_median, journey="loop-300"):
-    own = {"journey": journey, "draw": -1, "n_signs": 5, "n_false": 0, "abs_median_m": 9.0, "abs_mean_m": 9.0,
-           "rel_mean_m": 9.0}
-    return [own] + [{"journey": journey, "draw": k, "n_signs": 4 + k % 2, "n_false": 0, "abs_median_m": v,
-                     "abs_mean_m": v, "rel_mean_m": v} for k, v in enumerate(abs_median)]
+    own = {"journey": journey, "draw": -1, "n_signs": 5, "n_false": 0, "abs_median_m": 9.0,
+           "abs_mean_m": 9.0, "rel_mean_m": 9.0}
+    return [own] + [{"journey": journey, "draw": k, "n_signs": 4 + k % 2, "n_false": 0,
+                     "abs_median_m": v, "abs_mean_m": v, "rel_mean_m": v}
+                    for k, v in enumerate(abs_median)]
 
 
 def test_the_table_pairs_each_variants_draws_with_the_defaults():
