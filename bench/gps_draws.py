@@ -161,6 +161,17 @@ def table(name: str, results: dict[str, list[dict]]) -> str:
                 se = d.std(ddof=1) / np.sqrt(len(d))
                 cells += [f"{d.mean():+.3f} ± {se:.3f}", f"{int((d < 0).sum())}/{len(d)}"]
             lines.append("| " + " | ".join(cells) + " |")
+    if len(journeys) > 1:
+        lines += ["", "Per journey, means over its draws:", "",
+                  "| journey | variant | signs placed | " + " | ".join(METRICS) + " |",
+                  "| --- " * (3 + len(METRICS)) + "|"]
+        for journey in journeys:
+            for v, rows in fresh.items():
+                mine = [r for r in rows if r["journey"] == journey]
+                n_signs = [r["n_signs"] for r in mine]
+                lines.append(f"| {journey} | {v} | {min(n_signs)}-{max(n_signs)} | "
+                             + " | ".join(f"{np.mean([r[m] for r in mine]):.3f}"
+                                          for m in METRICS) + " |")
     return "\n".join(lines)
 
 

@@ -75,6 +75,7 @@ def test_draws_of_several_journeys_are_pooled_and_paired_journey_by_journey():
     assert "over 4 fresh GPS draws of 2 journeys (a, b)" in text
     row = next(line for line in text.splitlines() if line.startswith("| x |"))
     assert row.endswith("| -0.025 ± 0.048 | 2/4 |")
+    assert "| b | x | 4-5 | 0.500 | 0.500 | 0.500 |" in text.splitlines()
 
 
 def test_a_reseeded_suite_journey_is_the_same_kind_in_another_world():
