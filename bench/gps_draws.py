@@ -106,24 +106,24 @@ def draws_of_variant(spec, draws: int, knobs: dict, cache_dir: Path) -> list[dic
     from app.pipeline.types import CameraModel
     from bench.corpus import pipeline_config
     from bench.evaluate import truth_frame
-    from bench.metrics import evaluate_result
+    from bench.metrics import evaluate_result, truth_centres_enu
     from bench.suite import ensure_journey
 
     bundle, truth = ensure_journey(spec, cache_dir)
     cam = truth["camera"]
     camera = CameraModel.from_params(cam["width"], cam["height"], cam)
     config = pipeline_config({**knobs, "reuse_known_calibration": True})
-    T_world_cam = {f["frame"]: np.asarray(f["T_world_cam"], float) for f in truth["frames"]}
     with tempfile.TemporaryDirectory(prefix="gps-draws-") as tmp:
         journey = read_bundle(bundle, Path(tmp) / "bundle")
         recon = reconstruct(journey, config, Path(tmp) / "work", known_camera=camera)
-    true_enu = np.array([T_world_cam[f.frame_id][:3, 3] for f in journey.frames])
+    centres_enu = truth_centres_enu(truth)
+    true_enu = np.array([centres_enu[f.frame_id] for f in journey.frames])
+    truth_enu_frame = truth_frame(truth)
     rows = []
     for k in range(-1, draws):
         j, r = journey, recon
         if k >= 0:
-            drawn = draw_gps(true_enu, spec.synth, truth_frame(truth), recon.origin,
-                             DRAW_SEED0 + k)
+            drawn = draw_gps(true_enu, spec.synth, truth_enu_frame, recon.origin, DRAW_SEED0 + k)
             j, r = with_gps(journey, recon, drawn, config)
         signs = evaluate_result(georeference(j, r, config), truth)["signs"]
         rows.append({"journey": spec.name, "draw": k, "n_signs": signs["n_signs"],
