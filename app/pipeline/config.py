@@ -27,6 +27,18 @@ class PipelineConfig(BaseModel):
         "(a second at speed flattens a turn); 0: no cap")
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
+    # The last look (``steps.image_turns``), only where the GPS track shows no turn.
+    turn_image_look: bool = Field(
+        True, description="before refusing a journey \"no turn\", look for one on its images")
+    turn_image_interval_s: float = Field(
+        0.1, description="image look: seconds between the frames compared")
+    turn_image_max_frames: int = Field(
+        400, description="image look: most frames read (longer journeys are sampled sparser)")
+    turn_image_width_px: int = Field(
+        640, description="image look: frames are scaled down to this width")
+    turn_image_min_angle_deg: float = Field(
+        30.0, description="image look: heading change (read through the first focal guess) "
+        "that counts as a turn")
     # 44 frames at 10 Hz and 8 m/s (turn-70) spanned 35 m: the span that calibrated there.
     calib_window_m: float = Field(36.0, description="road a calibration candidate spans beyond "
                                   "its turn's curve, metres")

@@ -16,13 +16,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
 from app.pipeline.colmap.stage import StageSfm
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
-from app.pipeline.steps import align, calibrate, ego_motion, place_signs, plan
+from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
@@ -162,6 +163,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     t0 = time.perf_counter()
     with journal.stage("turns") as entry:
         the_plan = plan.plan_journey(journey, xyz_gps, config, known_camera)
+        if not the_plan.turns and known_camera is None and config.turn_image_look:
+            the_plan = _image_look(journey, the_plan, xyz_gps, config)
         entry.take(plan.report(the_plan, config))
     clock = _Clock(progress, _stage_weights(config.calib_images * bool(the_plan.calib_windows),
                                             len(the_plan.ego_frames)))
@@ -207,7 +210,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     calib: Calibration
     with journal.stage("calibrate") as entry:
         if not the_plan.calib_windows and known_camera is None:
-            raise calibrate.no_turn_error(config)
+            raise calibrate.no_turn_error(config, the_plan.image_frames_compared)
         with ThreadPoolExecutor(max_workers=1) as background:
             if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
                 background.submit(ego_sfm.correspondences)
@@ -291,6 +294,35 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_align[traj_idx],
                          trajectory_T_world_cam=traj_T,
                          origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports)
+
+
+def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarray,
+                config: PipelineConfig) -> plan.JourneyPlan:
+    """``the_plan`` with the turns the journey's frames show (``steps.image_turns``)."""
+    timestamp_s = np.array([f.timestamp_s for f in journey.frames])
+    frame_idx = image_turns.sample_frames(timestamp_s, config.turn_image_interval_s,
+                                          config.turn_image_max_frames)
+    # JPEG decodes at a half, quarter or eighth of the size for a fraction of the time.
+    reduced = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2,
+               4: cv2.IMREAD_REDUCED_GRAYSCALE_4, 8: cv2.IMREAD_REDUCED_GRAYSCALE_8}
+    flag = reduced[max(k for k in reduced
+                       if journey.image_width / k >= config.turn_image_width_px or k == 1)]
+    images = []
+    for i in frame_idx:
+        image = cv2.imread(str(journey.frames[i].path), flag)
+        if image is None:  # the bundle reader decoded every frame already: disk trouble
+            raise PipelineError("turns", f"frame {journey.frames[i].path.name} could not be "
+                                "read back")
+        images.append(image_turns.scaled_to(image, config.turn_image_width_px))
+    guess = calibrate.initial_camera(journey.image_width, journey.image_height, config,
+                                     journey.camera_prior)
+    headings = image_turns.heading_deg(images, guess.fx * images[0].shape[1] / journey.image_width,
+                                       frame_idx)
+    log.info("journey %s: no turn on the GPS track; the images turn %.0f deg at most "
+             "(%d frames compared, %d pairs unmeasured)", journey.camera_id,
+             np.ptp(headings.heading_deg), len(frame_idx), headings.unmeasured)
+    return plan.with_image_turns(the_plan, xyz_gps, timestamp_s, headings, config,
+                                 plan.gps_sigma_m(journey))
 
 
 def gps_trusted(journey: Journey, config: PipelineConfig) -> np.ndarray | None:

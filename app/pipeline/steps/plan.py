@@ -12,7 +12,7 @@ import numpy as np
 
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.uncertainty import RADIUS_68_IN_SIGMAS
-from app.pipeline.steps import calibrate, ego_motion, sign_tracks, turns
+from app.pipeline.steps import calibrate, ego_motion, image_turns, sign_tracks, turns
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.steps.turns import TurnWindow
@@ -42,6 +42,8 @@ class JourneyPlan:
     turns_look: str = ""
     # Tracks none of whose passes has the frames to triangulate: reported, never placed.
     too_short: tuple[RejectedSign, ...] = ()
+    # Frames the image look compared (``with_image_turns``; 0: it did not look).
+    image_frames_compared: int = 0
 
 
 def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: PipelineConfig,
@@ -80,6 +82,29 @@ def turns_and_candidates(xy_m: np.ndarray, timestamp_s: np.ndarray, config: Pipe
     s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
     return turn_windows, calibrate.candidate_windows(
         turn_windows, s_m, config, turns.cumulative_rotation_deg(xy_track, s_m)), look
+
+
+def with_image_turns(the_plan: JourneyPlan, xyz_gps: np.ndarray, timestamp_s: np.ndarray,
+                     headings: image_turns.ImageHeadings, config: PipelineConfig,
+                     gps_noise_m: float | None = None) -> JourneyPlan:
+    """``the_plan`` (which found no turn on the GPS track ``xyz_gps`` (N, 3) at the frames'
+    ``timestamp_s`` (N,)) with the turn the images' ``headings`` show
+    (``image_turns.strongest_turn``, along the smoothed GPS track's length) and its candidate
+    windows, each with the raw GPS track's turn over it for the calibration's check
+    (``gps_rotation``)."""
+    xy_track = turns.smooth_track(xyz_gps[:, :2], timestamp_s, config.turn_smoothing_s,
+                                  config.turn_smoothing_max_m)
+    s_m = turns.track_length_m(xy_track, tolerance_m=config.rdp_tolerance_m)
+    turn = image_turns.strongest_turn(s_m, headings, window_m=config.turn_window_m,
+                                      min_angle_deg=config.turn_image_min_angle_deg)
+    compared = len(headings.frame_idx)
+    if turn is None:
+        return replace(the_plan, image_frames_compared=compared)
+    windows = calibrate.candidate_windows([turn], s_m, config,
+                                          image_turns.rotation_deg(len(s_m), headings))
+    look = f"found on the images ({compared} frames compared; the GPS track shows none)"
+    return replace(the_plan, turns=[turn], turns_look=look, image_frames_compared=compared,
+                   calib_windows=gps_rotation(windows, xyz_gps, gps_noise_m, config))
 
 
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
@@ -224,6 +249,9 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
                    + (f" ({plan.turns_look})" if plan.turns_look else ""))
     else:
         summary = f"no turn of at least {config.turn_min_angle_deg:g} deg on the GPS track"
+        if plan.image_frames_compared:
+            summary += (f", nor of {config.turn_image_min_angle_deg:g} deg on the images "
+                        f"({plan.image_frames_compared} frames compared)")
     planned = [f"{len(plan.calib_windows)} calibration candidate window(s)",
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
                f"window(s) mapping {len(plan.ego_frames)} frames (one in {plan.ego_step}, and "
