@@ -1,19 +1,21 @@
 """The plan's last look for a turn, on the images, where the GPS track shows none.
 
 A journey of a few seconds with phone-grade fixes can turn 60-90 deg where its GPS track, 14-45 m
-long and scattered by metres, shows no corner at all (tuning journeys c0224, c0470, c0492, c0504
-of corpus seeds 192-448: 25-30 frames/s, 10-12 s). The camera sees the turn whatever the GPS
-does, so before such a journey is refused "no turn" its frames are asked.
+long and scattered by metres, shows no corner at all (tuning journeys c0224, c0414, c0470, c0492,
+c0504 of corpus seeds 192-448: 25-30 frames/s, 10-12 s, the turn often at one end). The camera
+sees the turn whatever the GPS does, so before such a journey is refused "no turn" its frames are
+asked.
 
 Every few frames (``sample_frames``) are scaled down and corners followed through them (KLT,
-``colmap.klt_features.track_features``); for each pair of consecutive sampled frames a car's planar motion
-(a turn about the camera's vertical axis, a step along the arc's chord) is fitted to them
-(``planar_yaw_deg``) and its turn is the heading change (``heading_deg``). The focal length is not known yet: the
-calibration's first guess stands in, and an angle read through a focal length a times too long
-comes out about 1/a times too small (a wide lens reads its turns short, a narrow one long).
-The largest heading change over a stretch of road is the journey's turn (``strongest_turn``),
-around which the plan builds its candidate windows as for a turn of the GPS track; each is only a
-candidate: calibration judges it as any other (rotation, registration, the GPS rotation check).
+``colmap.klt_features.track_features``); a car's planar motion (a turn about the camera's vertical
+axis, a step along the arc's chord) is fitted to each pair of consecutive sampled frames
+(``planar_yaw_deg``) and its turn is the heading change (``heading_deg``). The focal length is not
+known yet: the calibration's first guess stands in, and an angle read through a focal length a
+times too long comes out about 1/a times too small (a wide lens reads its turns short, a narrow
+one long). The largest heading change over a stretch of road is the journey's turn
+(``strongest_turn``), around which the plan builds its candidate windows as for a turn of the GPS
+track; each is only a candidate: calibration judges it as any other (rotation, registration, the
+GPS rotation check).
 
 Pixels are OpenCV's; the camera frame is x right, y down, z forward (``types``). Headings are
 degrees, left (counter-clockwise seen from above) positive, as in ``turns``.
