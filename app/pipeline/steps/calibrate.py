@@ -325,8 +325,8 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
 
 def no_turn_error(cfg: PipelineConfig, images_compared: int = 0) -> PipelineError:
     """``images_compared``: frames the plan's image look compared (0: it did not look)."""
-    seen = (f", nor one of >= {cfg.turn_image_min_angle_deg:.0f} deg on {images_compared} of its "
-            "frames" if images_compared else "")
+    seen = (f", nor did {images_compared} of its frames compared show one of >= "
+            f"{cfg.turn_image_min_angle_deg:.0f} deg" if images_compared else "")
     return PipelineError(STAGE, "the journey has no turn (RDP found no heading change of "
                          f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track{seen}); a straight "
                          "road cannot calibrate the camera. Upload a journey with a turn first, or "
