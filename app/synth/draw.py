@@ -80,8 +80,11 @@ def _size(cfg: SynthConfig, need_m: float, turns_mid_m: float, max_frames: int,
     if dist_m > cfg.world_travel_m + 10.0:  # rare: the window drives faster than the long run
         return capped.replace(world_travel_m=float(math.ceil(dist_m)))
     # The window's own stops and speed noise differ from the long run's: keep it on the road.
-    start_m = float(np.clip(float(profile.s_at(t0)), 0.0, cfg.world_travel_m + 20.0 - dist_m))
-    return capped.replace(start_m=round(max(start_m, 0.0), 3))
+    last_start_m = cfg.world_travel_m + 20.0 - dist_m
+    start_m = round(max(float(np.clip(float(profile.s_at(t0)), 0.0, last_start_m)), 0.0), 3)
+    if start_m > last_start_m:  # rounded up past the end of the world (seed 554 by 0.2 mm)
+        start_m = max(math.floor(last_start_m * 1000.0) / 1000.0, 0.0)
+    return capped.replace(start_m=start_m)
 
 
 def _dropouts(cfg: SynthConfig, fractions) -> SynthConfig:

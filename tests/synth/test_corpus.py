@@ -42,6 +42,14 @@ def test_draws_are_deterministic_per_seed():
     assert all(not isinstance(v, (dict, list, tuple)) for v in a.values())
 
 
+def test_a_capped_journey_is_not_rounded_past_the_end_of_its_world():
+    # Seed 554's start, rounded to the millimetre, put its last frame 0.2 mm beyond the scenery
+    # and the generator refused it ("drives past the end of its world").
+    cfg, _ = draw_journey(554)
+    assert cfg.start_m == pytest.approx(15.329)
+    assert len(generate(cfg).timestamps_s) == cfg.n_frames
+
+
 def test_parameter_ranges_over_many_draws():
     draws = [draw_journey(seed) for seed in range(200)]
     ps = [p for _, p in draws]
