@@ -27,7 +27,12 @@ class PipelineConfig(BaseModel):
         "(a second at speed flattens a turn); 0: no cap")
     turn_min_angle_deg: float = Field(30.0, description="heading change that counts as a turn")
     turn_window_m: float = Field(40.0, description="track length kept before and after a turn vertex")
-    # The last look (``steps.image_turns``), only where the GPS track shows no turn.
+    # The last look (``steps.image_turns``), only where the GPS track shows no turn. Tuning halves
+    # of seeds 0-448 (calibration only, reproducible COLMAP, 2026-11-28): the 5 journeys whose
+    # turns of 45 deg or more the GPS hid calibrate (0 before), 2 within every bar, the others
+    # within 2.3 % in fx and fy (k1 +9.9 % on one); of 4 with 30-45 deg, 2 accepted, 2 refused.
+    # Unseen check journeys without a GPS turn (seeds 513-831, run once): 3 of 29 given a turn,
+    # all refused with a reason (bench/results/2026-11-28-image-turns.md).
     turn_image_look: bool = Field(
         True, description="before refusing a journey \"no turn\", look for one on its images")
     turn_image_interval_s: float = Field(
