@@ -1,7 +1,9 @@
 """The journey's plan, made before any image is read: the turns of its GPS track and the
 calibration candidate windows around them (``turns``, ``calibrate.candidate_windows``), the
 passes of its sign tracks (``sign_tracks``) and the ego-motion windows around them
-(``ego_motion.plan_windows``). ``run.process_journey`` weighs its progress by the plan.
+(``ego_motion.plan_windows``). ``run.process_journey`` weighs its progress by the plan. Only a
+journey whose GPS track shows no turn has images read for its plan: the headings they show
+(``image_turns``) give it the turn (``with_image_turns``).
 """
 
 from __future__ import annotations
