@@ -16,11 +16,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
-from app.pipeline.colmap.stage import StageSfm
+from app.pipeline.colmap.stage import StageSfm, read_gray
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
@@ -302,18 +301,10 @@ def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarra
     timestamp_s = np.array([f.timestamp_s for f in journey.frames])
     frame_idx = image_turns.sample_frames(timestamp_s, config.turn_image_interval_s,
                                           config.turn_image_max_frames)
-    # JPEG decodes at a half, quarter or eighth of the size for a fraction of the time.
-    reduced = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2,
-               4: cv2.IMREAD_REDUCED_GRAYSCALE_4, 8: cv2.IMREAD_REDUCED_GRAYSCALE_8}
-    flag = reduced[max(k for k in reduced
-                       if journey.image_width / k >= config.turn_image_width_px or k == 1)]
-    images = []
-    for i in frame_idx:
-        image = cv2.imread(str(journey.frames[i].path), flag)
-        if image is None:  # the bundle reader decoded every frame already: disk trouble
-            raise PipelineError("turns", f"frame {journey.frames[i].path.name} could not be "
-                                "read back")
-        images.append(image_turns.scaled_to(image, config.turn_image_width_px))
+    reduce = max(k for k in (1, 2, 4, 8)
+                 if journey.image_width / k >= config.turn_image_width_px or k == 1)
+    images = [image_turns.scaled_to(read_gray(journey.frames[i].path, "turns", reduce=reduce),
+                                    config.turn_image_width_px) for i in frame_idx]
     guess = calibrate.initial_camera(journey.image_width, journey.image_height, config,
                                      journey.camera_prior)
     headings = image_turns.heading_deg(images, guess.fx * images[0].shape[1] / journey.image_width,

@@ -70,12 +70,12 @@ def _straight_gps(journey):
     s_m = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1))]
     line = np.column_stack([s_m, np.zeros_like(s_m), np.zeros_like(s_m)])
     lat, lon, _ = origin.to_geodetic(line)
-    return replace(journey, lat_deg=lat, lon_deg=lon, gps_noise_m=0.5), origin, line
+    return replace(journey, lat_deg=lat, lon_deg=lon, gps_noise_m=0.5), line
 
 
 def test_the_image_look_finds_the_turn_the_gps_does_not_show(turn_journey_bundle, tmp_path):
     bundle, truth = turn_journey_bundle
-    journey, origin, xyz_gps = _straight_gps(read_bundle(bundle, tmp_path / "bundle"))
+    journey, xyz_gps = _straight_gps(read_bundle(bundle, tmp_path / "bundle"))
     config = PipelineConfig()
     the_plan = plan.plan_journey(journey, xyz_gps, config)
     assert not the_plan.turns and not the_plan.calib_windows
