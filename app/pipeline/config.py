@@ -94,10 +94,6 @@ class PipelineConfig(BaseModel):
     calib_retry_focal_factors: tuple[float, ...] = Field(
         (0.5, 1.2), description="when a candidate window registers too few frames from the "
         "first focal guess, map it again from these multiples of the image width")
-    calib_polish: bool = Field(
-        True, description="after stage 2, map a candidate window again with stage 2's camera "
-        "held and run stage 2 once more; the second result is kept when it registers as many "
-        "frames and fits at least as well")
     calib_stage1_k2: bool = Field(
         True, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")

@@ -84,7 +84,6 @@ def test_a_processed_journey_reports_every_stage_in_order(turn_run):
     assert calibrate.summary.startswith(f"self-calibrated on frames {first}-{end - 1}")
     accepted = [d for d in calibrate.details if "accepted" in d]
     assert len(accepted) == 1 and accepted[0].startswith(f"frames {first}-{end - 1}:")
-    assert "mapped again with its camera held" in accepted[0]
     assert ego.details and all(" registered" in d for d in ego.details)
     assert "windows aligned to GPS" in align.summary
     assert triangulate.summary.startswith(f"{len(result.signs)} signs placed")

@@ -100,17 +100,6 @@ CALIBRATION_MAPPER = {
     "mapper.abs_pose_refine_extra_params": True,
 }
 
-# Intrinsics held at a first stage 2's camera (``sfm._polished``), with stage 1's choice of initial
-# pair: ego-motion's, below, let a forward-moving pair start the model, and stage 2 then ran off
-# to fx +17 % at 0.45 px where this preset gave -0.7 % at 0.26 px (corpus c0516, 2026-11-28).
-POLISH_MAPPER = {
-    **CALIBRATION_MAPPER,
-    "multiple_models": False,
-    "ba_refine_focal_length": False,
-    "ba_refine_extra_params": False,
-    "mapper.abs_pose_refine_focal_length": False,
-    "mapper.abs_pose_refine_extra_params": False,
-}
 # Intrinsics held at the calibration (ego-motion).
 EGO_MOTION_MAPPER = {
     **_MAPPER,

@@ -62,9 +62,6 @@ class WindowRequest:
     # that registered most is kept.
     retry_focals_px: tuple[float, ...] = ()
     retry_below: int = 0
-    # With ``calibrate``: map the window again with stage 2's camera held, then stage 2 again
-    # (``_polished``).
-    polish: bool = False
 
 
 @dataclass
@@ -99,8 +96,6 @@ class WindowResult:
     # The focal length (px) stage 1 started from when this is the mapping of a retry
     # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
     retry_focal_px: float = float("nan")
-    # What polishing (``WindowRequest.polish``) did, for the stage's report ("": not tried).
-    polish: str = ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -213,9 +208,6 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
     if window.calibrate:
         result = _retry_from_other_focals(pycolmap, job, index, window, result)
-        # A window the judge refuses for registering too few frames is not worth polishing.
-        if window.polish and not result.error and len(result.image_names) >= window.retry_below:
-            result = _polished(pycolmap, job, index, window, result)
     # A window that built no model already tried COLMAP's own initial pair last (``_map_window``).
     run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
     if run and result.image_names:
@@ -250,34 +242,6 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
         if len(again.image_names) > len(result.image_names):
             result = again
     return result
-
-
-def _polished(pycolmap, job: SfmJob, index: int, window: WindowRequest,
-               result: WindowResult) -> WindowResult:
-    """``result``, or the window mapped again with its stage-2 camera held and refined by stage 2
-    once more, when that registers as many frames and fits at least as well.
-
-    Stage 1's free intrinsics warp the reconstruction they build, and stage 2 refines that
-    reconstruction rather than rebuilding it: from a stage 1 35 % long, stage 2 stopped 6.9 %
-    long at 0.36 px, every frame registered, its covariance claiming 0.4 %. Mapped again with
-    a camera 4.3 % long held, the same frames gave -0.7 % at 0.26 px; from the true camera,
-    -0.7 % at 0.26 px (103 deg lens, corpus c0516, 2026-11-28)."""
-    again = _map_window(pycolmap, job, job.workdir / "features.db", index,
-                        replace(window, camera=result.camera), suffix="_polish", hold_camera=True)
-    if again.error:
-        result.polish = f"mapped again with its camera held: {again.error}"
-        return result
-    outcome = (f"mapped again with its camera held: {len(again.image_names)}/{again.n_input} "
-               f"registered, {again.reprojection_error_px:.2f} px, fx {again.camera.fx:.1f}")
-    log.info("window %d: %s (before: %d registered, %.3f px, fx %.1f)", index, outcome,
-             len(result.image_names), result.reprojection_error_px, result.camera.fx)
-    if (len(again.image_names) < len(result.image_names)
-            or not again.reprojection_error_px <= result.reprojection_error_px):
-        result.polish = f"{outcome}, not kept"
-        return result
-    again.stage1_camera, again.retry_focal_px = result.stage1_camera, result.retry_focal_px
-    again.polish = f"{outcome}, kept (fx {result.camera.fx:.1f} before)"
-    return again
 
 
 def leftover_run(names: list[str], registered: list[str], min_images: int) -> list[str]:
@@ -387,11 +351,7 @@ def camera_model(cam) -> CameraModel:
 
 
 def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
-                window: WindowRequest, suffix: str = "", *,
-                hold_camera: bool = False) -> WindowResult:
-    """``hold_camera`` (with ``window.calibrate``): map with the window's whole camera held, as
-    ego-motion does, and then run stage 2 (``_polished``)."""
-    held = hold_camera or not window.calibrate
+                window: WindowRequest, suffix: str = "") -> WindowResult:
     out = job.workdir / f"window_{index:03d}{suffix}"
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
@@ -401,9 +361,9 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     shutil.copyfile(database, db_path)
     with pycolmap.Database.open(db_path) as db:
         for cam in db.read_all_cameras():
-            if not held or hold_camera:
+            if window.calibrate:
                 c = window.camera
-                params = [0.5 * (c.fx + c.fy), c.cx + COLMAP_PIXEL_OFFSET, c.cy + COLMAP_PIXEL_OFFSET, c.k1]
+                params = [c.fx, c.cx + COLMAP_PIXEL_OFFSET, c.cy + COLMAP_PIXEL_OFFSET, c.k1]
                 new = pycolmap.Camera(
                     model="RADIAL" if job.mapping.stage1_k2 else "SIMPLE_RADIAL",
                     width=c.width, height=c.height,
@@ -415,8 +375,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
             db.update_camera(new)
     options = presets.options(
         pycolmap, "IncrementalPipelineOptions",
-        (presets.POLISH_MAPPER if hold_camera else presets.EGO_MOTION_MAPPER) if held
-        else presets.CALIBRATION_MAPPER,
+        presets.CALIBRATION_MAPPER if window.calibrate else presets.EGO_MOTION_MAPPER,
         **presets.mapper_knobs(job.mapping), image_names=list(window.image_names),
         num_threads=job.process.threads, use_prior_position=window.use_position_priors)
     empty = WindowResult([], np.zeros((0, 4, 4)), window.camera, n_input=len(window.image_names))

@@ -318,9 +318,8 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
         gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f} over "
                f"{len(window.gps_frame_idx)} of its frames, where it turns "
                f"{gps_turn_deg:.1f})")
-    polished = f" ({res.polish})" if res.polish else ""
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
-            f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}{polished}, "
+            f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
 
 
