@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
-from app.pipeline.colmap.stage import StageSfm, read_gray
+from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
@@ -301,7 +301,7 @@ def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarra
     timestamp_s = np.array([f.timestamp_s for f in journey.frames])
     frame_idx = image_turns.sample_frames(timestamp_s, config.turn_image_interval_s,
                                           config.turn_image_max_frames)
-    reduce = max(k for k in (1, 2, 4, 8)
+    reduce = max(k for k in REDUCED_READ
                  if journey.image_width / k >= config.turn_image_width_px or k == 1)
     images = [image_turns.scaled_to(read_gray(journey.frames[i].path, "turns", reduce=reduce),
                                     config.turn_image_width_px) for i in frame_idx]

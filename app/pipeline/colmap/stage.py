@@ -107,15 +107,16 @@ class StageSfm:
         return read_gray(path, self.stage)
 
 
-# JPEG decodes at a half, quarter or eighth of the size for a fraction of the time.
-_REDUCED = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2,
-            4: cv2.IMREAD_REDUCED_GRAYSCALE_4, 8: cv2.IMREAD_REDUCED_GRAYSCALE_8}
+# JPEG decodes at a half, quarter or eighth of the size for a fraction of the time: the reductions
+# ``read_gray`` takes, and OpenCV's flag for each.
+REDUCED_READ = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2,
+                4: cv2.IMREAD_REDUCED_GRAYSCALE_4, 8: cv2.IMREAD_REDUCED_GRAYSCALE_8}
 
 
 def read_gray(path: Path, stage: str, *, reduce: int = 1) -> np.ndarray:
     """The frame at ``path``, 8-bit grayscale, decoded at 1/``reduce`` of its size (1, 2, 4, 8);
     an unreadable frame fails ``stage``."""
-    image = cv2.imread(str(path), _REDUCED[reduce])
+    image = cv2.imread(str(path), REDUCED_READ[reduce])
     if image is None:  # the bundle reader decoded every frame already; this is disk trouble
         raise PipelineError(stage, f"frame {path.name} could not be read back")
     return image
