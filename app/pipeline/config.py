@@ -185,6 +185,14 @@ class PipelineConfig(BaseModel):
         "heading change (from the fixes' white noise and the chord length)")
     calib_gps_rotation_min_slack_deg: float = Field(
         10.0, description="least slack (degrees) of the GPS rotation check")
+    # Tuning-half U-turns at 20 Hz (c0462, c0554; 2026-11-28) were refused with every window of
+    # one road agreeing within 0.7 % of the lens at 0.37-0.41 px. Chosen on the records of
+    # 2026-11-26..28 (bench/results/2026-11-28-shared-road.md): agreeing pairs of one road, each
+    # turning >= 45 deg, right up to 0.43 px, the two wrong ones at 0.49 (a check half) and 0.57.
+    calib_shared_road_max_px: float = Field(
+        0.45, ge=0.0, description="when no candidate calibrated otherwise, two that share most of "
+        "their road, agree, each turn at least calib_alone_min_rotation_deg and fit under this "
+        "error (px) are accepted (0: never)")
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")

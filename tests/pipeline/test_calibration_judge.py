@@ -210,6 +210,32 @@ def test_windows_sharing_most_of_their_road_are_not_two_witnesses():
     assert tried == [0, 1] and "no other window agreed" in str(err)
 
 
+def test_windows_of_one_road_that_agree_are_the_last_resort():
+    # Tuning c0462 (a U-turn at 20 Hz): every window was kept above 0.35 px or refused, and those
+    # kept shared their road and agreed within 0.7 % of the lens at 0.37-0.41 px (2026-11-28).
+    nearly = CameraModel(1242, 375, 962.0, 955.0, 692.0, 243.0, -0.366, 0.15)
+    cal, tried = _search([_window(TRUE, error_px=0.41), _window(WRONG, registered=10),
+                          _window(nearly, error_px=0.38)], shift=4)
+    assert tried == [0, 1, 2] and cal.evidence == "agreement on shared road"
+    assert cal.camera == nearly and cal.windows == [(8, 38)]
+    # Only when nothing else calibrates: a window of other road that agrees is taken first.
+    cal, tried = _search([_window(TRUE, error_px=0.41), _window(nearly, error_px=0.38),
+                          _window(TRUE, error_px=0.4)], shift=8)
+    assert tried == [0, 1, 2] and cal.evidence == "agreement"
+    # Not above the knob's error (a wrong pair fitted at 0.49 px), nor turning little, nor off.
+    err, _ = _search([_window(TRUE, error_px=0.5), _window(nearly, error_px=0.38)], shift=8)
+    assert "no other window agreed" in str(err)
+    err, _ = _search([_window(TRUE, error_px=0.41, yaw_deg=40.0),
+                      _window(nearly, error_px=0.38)], shift=8)
+    assert "no other window agreed" in str(err)
+    err, _ = _search([_window(TRUE, error_px=0.41), _window(nearly, error_px=0.38)], shift=8,
+                     config=PipelineConfig(calib_shared_road_max_px=0.0))
+    assert "no other window agreed" in str(err)
+    # Nor do they agree on different cameras.
+    err, _ = _search([_window(TRUE, error_px=0.41), _window(WRONG, error_px=0.38)], shift=8)
+    assert "no other window agreed" in str(err)
+
+
 def test_a_lone_unconfirmed_window_is_refused_not_accepted():
     # A 5 Hz journey's best candidate was a wrong minimum at 0.75 px (fx 23 % low, k1 +0.32).
     err, tried = _search([_window(TRUE, registered=10), _window(WRONG, error_px=0.75)])

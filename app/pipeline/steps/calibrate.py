@@ -18,7 +18,9 @@ it); otherwise, above that error, or when stage 2's covariance leaves its fx loo
 window of other frames that lands on the same camera. A window that registers too few frames from
 the first focal guess is mapped again from others (``calib_retry_focal_factors``, in
 ``colmap.sfm``, where its features already are).
-Anything else is refused with every candidate's reason.
+When none calibrated, two windows of one road that agree, each turning enough and fitting well
+(``calib_shared_road_max_px``), are the last resort. Anything else is refused with every
+candidate's reason.
 """
 
 from __future__ import annotations
@@ -277,6 +279,28 @@ def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
             and abs(a.k1 - b.k1) <= max(0.02, 10 * tol * abs(a.k1)))
 
 
+def _agreeing_on_shared_road(kept: list[tuple[CalibrationWindow, WindowResult]],
+                             cfg: PipelineConfig) -> list[tuple[CalibrationWindow, WindowResult]]:
+    """The last resort when no candidate calibrated: the two ``kept`` windows, sharing most of
+    their road, that agree with the lowest error, when each turns at least
+    ``calib_alone_min_rotation_deg`` and fits under ``calib_shared_road_max_px``; else [].
+
+    Windows of one road are weaker witnesses than windows of two, but over every record of
+    2026-11-26..28 (bench/results/2026-11-28-shared-road.md) pairs of them turning 45 deg or more
+    landed within 1 % of the lens at up to 0.43 px; the two wrong pairs (fx 10-11 % short) fitted
+    at 0.49 and 0.57 px. Not when agreement is always required: windows after the first start
+    from its camera there, so windows of one road would agree by construction."""
+    if not cfg.calib_shared_road_max_px or cfg.calib_require_agreement:
+        return []
+    usable = [(w, r) for w, r in kept
+              if r.reprojection_error_px <= cfg.calib_shared_road_max_px
+              and not _focal_uncertain(r, cfg)
+              and rotation_covered_deg(r.T_model_cam) >= cfg.calib_alone_min_rotation_deg]
+    pairs = [[a, b] for i, a in enumerate(usable) for b in usable[i + 1:]
+             if _agree(a[1].camera, b[1].camera, cfg)]
+    return min(pairs, key=lambda p: max(g[1].reprojection_error_px for g in p), default=[])
+
+
 def summary(calib: Calibration) -> str:
     """One line on a self-calibration: the window, its evidence, the camera and the fit."""
     (first, end), = calib.windows[:1] or [(0, 0)]
@@ -452,6 +476,14 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                       + (f"{weak}, " if weak else "") + "kept until another window agrees")
         reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
                        f"other window agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
+    if not chosen and (pair := _agreeing_on_shared_road(good, cfg)):
+        chosen, evidence = pair, "agreement on shared road"
+        (first, a), (second, b) = pair
+        log.info("calibration: %s and %s agree on shared road", first.label, second.label)
+        trials.append(f"{first.label} and {second.label}: accepted as a last resort, they share "
+                      f"{100 * shared_fraction(second, first):.0f} % of their road and agree "
+                      f"(fx {a.camera.fx:.0f} and {b.camera.fx:.0f}, "
+                      f"{a.reprojection_error_px:.2f} and {b.reprojection_error_px:.2f} px)")
     if not chosen:
         # A lone candidate above the sharp-image error is not accepted: a wrong minimum
         # (fx 23 % low, k1 +0.32 at 0.75 px) was the best of a 5 Hz journey's candidates
