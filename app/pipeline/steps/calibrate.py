@@ -281,9 +281,10 @@ def _agree(a: CameraModel, b: CameraModel, cfg: PipelineConfig) -> bool:
 
 def _agreeing_on_shared_road(kept: list[tuple[CalibrationWindow, WindowResult]],
                              cfg: PipelineConfig) -> list[tuple[CalibrationWindow, WindowResult]]:
-    """The last resort when no candidate calibrated: the two ``kept`` windows, sharing most of
-    their road, that agree with the lowest error, when each turns at least
-    ``calib_alone_min_rotation_deg`` and fits under ``calib_shared_road_max_px``; else [].
+    """The last resort when no candidate calibrated: the two ``kept`` windows that agree with the
+    lowest error, when each turns at least ``calib_alone_min_rotation_deg`` and fits under
+    ``calib_shared_road_max_px``; else []. Two kept windows that agree share most of their road,
+    or the search would have ended on them.
 
     Windows of one road are weaker witnesses than windows of two, but over every record of
     2026-11-26..28 (bench/results/2026-11-28-shared-road.md) pairs of them turning 45 deg or more
