@@ -347,6 +347,78 @@ def test_the_gps_check_compares_the_reconstruction_over_the_frames_the_gps_measu
                        height=375)
 
 
+def _s_curves(step_m: float = 0.5):
+    """Per-frame (xy (N, 2), heading rad (N,)) of a road turning -34 deg on a 10 m radius,
+    +148 on 16 m and -39 on 10 m, 4 m of straight between them: c0162's kind (tuning, corpus
+    seed 128)."""
+    legs = [(15.0, 0.0), (np.radians(34) * 10, -np.radians(34)), (4.0, 0.0),
+            (np.radians(148) * 16, np.radians(148)), (4.0, 0.0),
+            (np.radians(39) * 10, -np.radians(39)), (15.0, 0.0)]
+    s = np.arange(0.0, sum(length for length, _ in legs), step_m)
+    ends = np.cumsum([0.0] + [length for length, _ in legs])
+    rate = np.select([(s >= a) & (s < b) for a, b in zip(ends[:-1], ends[1:])],
+                     [turned / length for length, turned in legs])
+    heading = np.concatenate([[0.0], np.cumsum(rate[:-1] * step_m)])
+    xy = np.column_stack([np.cumsum(np.cos(heading)), np.cumsum(np.sin(heading))]) * step_m
+    return xy, heading
+
+
+def _cameras_along(heading_rad: np.ndarray, *, pitch_deg: float = 6.0) -> np.ndarray:
+    """(N, 4, 4) T_model_cam of a camera looking along ``heading_rad`` pitched down by
+    ``pitch_deg``, in a model frame turned arbitrarily from the world."""
+    T = np.tile(np.eye(4), (len(heading_rad), 1, 1))
+    # Camera axes (x right, y down, z forward) in a world with z up, heading about z.
+    R_world_cam = Rotation.from_euler("z", heading_rad[:, None]).as_matrix() @ np.array(
+        [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float) @ Rotation.from_euler(
+        "x", -pitch_deg, degrees=True).as_matrix()
+    R_model_world = Rotation.from_euler("xyz", [30, -50, 70], degrees=True).as_matrix()
+    T[:, :3, :3] = R_model_world @ R_world_cam
+    return T
+
+
+def test_the_heading_about_up_leaves_pitch_out_and_goes_past_180_deg():
+    from app.pipeline.steps.calibrate import heading_about_up_deg, rotation_covered_deg
+
+    heading = np.radians(np.linspace(0.0, 200.0, 41))
+    T = _cameras_along(heading, pitch_deg=10.0)
+    change = np.degrees(np.unwrap(np.radians(heading_about_up_deg(T))))
+    assert np.allclose(np.abs(change - change[0]), np.degrees(heading), atol=1e-6)
+    assert rotation_covered_deg(T) == pytest.approx(180.0, abs=0.1)  # capped, unlike it
+
+
+def test_the_gps_check_compares_at_the_gps_resolution_where_curves_lie_close():
+    from dataclasses import replace
+
+    from app.pipeline.steps import plan
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+    from app.pipeline.types import PipelineError
+
+    xy, heading = _s_curves()
+    xyz = np.column_stack([xy, np.zeros(len(xy))])
+    names = [f"{i:06d}.png" for i in range(len(xy))]
+    # From the end of the first curve, where the camera looks 34 deg right, to past the last:
+    # the 10 m chords there look along the curves' mean and see the turn 12 deg short.
+    frames = np.linspace(42, 154, 22).astype(int)
+    window, = plan.gps_rotation([CalibrationWindow(frames, vertex=int(frames[10]))], xyz, 0.3,
+                                PipelineConfig())
+    right = WindowResult([names[i] for i in frames], _cameras_along(heading[frames]), TRUE,
+                         reprojection_error_px=0.15, n_input=len(frames))
+    trials: list[str] = []
+    cal = self_calibrate([window], PipelineConfig(), lambda w, start: right, width=1242,
+                         height=375, frame_names=names, trials=trials)
+    assert cal.camera == TRUE, trials
+    assert "at 10 m of road)" in trials[0]
+    # The camera's whole rotation against the chords' refused it, as before.
+    with pytest.raises(PipelineError, match="where the GPS turns"):
+        self_calibrate([replace(window, gps_s_m=None)], PipelineConfig(),
+                       lambda w, start: right, width=1242, height=375, frame_names=names)
+    # A focal length far too short turns the cameras a third further: refused at that resolution.
+    wrong = replace(right, T_model_cam=_cameras_along(1.33 * heading[frames]), camera=WRONG)
+    with pytest.raises(PipelineError, match="where the GPS turns"):
+        self_calibrate([window], PipelineConfig(), lambda w, start: wrong, width=1242,
+                       height=375, frame_names=names)
+
+
 def test_a_window_that_registered_few_of_its_frames_needs_another_to_agree():
     # Check-half c0155 (seed 128) was accepted alone on 12/19 registered at 0.29 px, fx -4.5 %.
     knob = PipelineConfig(calib_alone_min_registered_ratio=0.9)
