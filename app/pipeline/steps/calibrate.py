@@ -55,17 +55,13 @@ class CalibrationWindow:
     whose RDP vertex is frame ``vertex``. ``gps_rotation_deg``: how far the GPS track turns over
     the frames ``gps_frame_idx`` of them (``turns.chord_rotation_deg``; None: all),
     ``gps_rotation_std_deg`` its standard deviation from the GPS noise; NaN where unknown
-    (``plan.gps_rotation``). ``gps_s_m`` (K,): metres along the GPS track at each of
-    ``frame_idx``; ``gps_heading_deg`` (K,): heading of the GPS chord centred on each (NaN where
-    the chord leaves the track); None where unknown."""
+    (``plan.gps_rotation``)."""
 
     frame_idx: np.ndarray
     vertex: int
     gps_rotation_deg: float = float("nan")
     gps_rotation_std_deg: float = float("nan")
     gps_frame_idx: np.ndarray | None = None
-    gps_s_m: np.ndarray | None = None
-    gps_heading_deg: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -210,91 +206,10 @@ def _rotation_where_gps_measured(window: CalibrationWindow, res: WindowResult,
     return rotation_covered_deg(T_model_cam)
 
 
-def heading_about_up_deg(T_model_cam: np.ndarray) -> np.ndarray:
-    """(K,) heading (deg, in (-180, 180]) of each camera's optical axis about the
-    reconstruction's up axis, taken as the axis of the largest rotation from the first camera:
-    a car turns about the vertical, so its pitch and roll stay out of what this measures."""
-    R_model_cam = np.asarray(T_model_cam)[:, :3, :3]
-    rotvec = Rotation.from_matrix(R_model_cam @ R_model_cam[0].T).as_rotvec()
-    largest = rotvec[np.argmax(np.linalg.norm(rotvec, axis=1))]
-    axis_z = R_model_cam[:, :, 2]
-    e1 = axis_z[0] - (axis_z[0] @ largest) * largest / max(float(largest @ largest), 1e-18)
-    if np.linalg.norm(largest) < 1e-9 or np.linalg.norm(e1) < 1e-6:
-        return np.zeros(len(R_model_cam))
-    up = largest / np.linalg.norm(largest)
-    e1 /= np.linalg.norm(e1)
-    return np.degrees(np.arctan2(axis_z @ np.cross(up, e1), axis_z @ e1))
-
-
-def _chord_matched_turns(window: CalibrationWindow, res: WindowResult,
-                         frame_names: Sequence[str] | None,
-                         chord_m: float) -> tuple[float, float, int] | None:
-    """(reconstruction's turn, GPS's turn, frames compared), degrees, both at the GPS's
-    resolution, or None where the window lacks the GPS's profile or the reconstruction spans
-    no whole chord.
-
-    The GPS sees a chord's heading, the mean of the car's over ``chord_m`` of road, so it turns
-    less than the camera where two turns lie closer than a chord: a +145/+143 deg double turn
-    turned 138 deg in the truth and in its right reconstruction, 111 on the chords, and the
-    right calibration was refused (tuning c0194 of corpus seed 192). So the reconstruction's
-    headings about its up axis are averaged over the same road before they are compared, at the
-    frames whose chord the registered cameras span."""
-    if (window.gps_s_m is None or window.gps_heading_deg is None or frame_names is None
-            or len(res.image_names) < 2):
-        return None
-    at = {frame_names[i]: k for k, i in enumerate(window.frame_idx)}
-    pairs = sorted((window.gps_s_m[at[name]], j) for j, name in enumerate(res.image_names)
-                   if name in at)
-    if len(pairs) < 2:
-        return None
-    s_reg_m = np.array([p[0] for p in pairs])
-    heading_reg = np.radians(heading_about_up_deg(res.T_model_cam)[[p[1] for p in pairs]])
-    heading_reg = np.unwrap(heading_reg)
-    tol_m = 0.1 * chord_m
-    compared = np.flatnonzero(np.isfinite(window.gps_heading_deg)
-                              & (window.gps_s_m - chord_m / 2 >= s_reg_m[0] - tol_m)
-                              & (window.gps_s_m + chord_m / 2 <= s_reg_m[-1] + tol_m))
-    if len(compared) < 2:
-        return None
-    recon_deg = []
-    for k in compared:
-        grid_m = window.gps_s_m[k] + np.linspace(-chord_m / 2, chord_m / 2, 41)
-        along = np.interp(grid_m, s_reg_m, heading_reg)
-        recon_deg.append(np.degrees(np.arctan2(np.sin(along).mean(), np.cos(along).mean())))
-
-    def largest_change(heading_deg) -> float:
-        change = (np.asarray(heading_deg) - heading_deg[0] + 180.0) % 360.0 - 180.0
-        return float(np.max(np.abs(change)))
-
-    return (largest_change(recon_deg), largest_change(window.gps_heading_deg[compared]),
-            len(compared))
-
-
-@dataclass(frozen=True)
-class GpsTurn:
-    """How far a candidate's reconstruction and the GPS turn over the same frames (degrees):
-    ``frames`` of them, ``matched`` when at the GPS's resolution (``_chord_matched_turns``),
-    else the reconstruction's whole rotation over the frames the GPS measured."""
-
-    recon_deg: float
-    gps_deg: float
-    frames: int
-    matched: bool
-
-
-def gps_turn(window: CalibrationWindow, res: WindowResult, frame_names: Sequence[str] | None,
-             cfg: PipelineConfig) -> GpsTurn:
-    if matched := _chord_matched_turns(window, res, frame_names, cfg.calib_gps_chord_m):
-        return GpsTurn(*matched, matched=True)
-    measured = window.frame_idx if window.gps_frame_idx is None else window.gps_frame_idx
-    return GpsTurn(_rotation_where_gps_measured(window, res, frame_names),
-                   window.gps_rotation_deg, len(measured), matched=False)
-
-
-def _turns_beyond_gps(window: CalibrationWindow, turn: GpsTurn,
+def _turns_beyond_gps(window: CalibrationWindow, rotation: float,
                       cfg: PipelineConfig) -> str | None:
-    """Why the reconstruction turns further than the GPS allows over the same frames (``turn``),
-    or None.
+    """Why the reconstruction, turning ``rotation`` deg over the frames the GPS measured, turns
+    further than the GPS allows, or None.
 
     A focal length far too short opens every bearing, so the window's cameras turn further than
     the car did: a narrow lens with strong barrel distortion calibrated 38 % short (k1 -0.14 for
@@ -302,13 +217,14 @@ def _turns_beyond_gps(window: CalibrationWindow, turn: GpsTurn,
     seed 64, 2026-11-27). Only the excess is a tell: a reconstruction may turn less than the GPS
     says, where noise made the track zigzag. A 3 % focal error turns a 60 deg window by 2 deg,
     which this does not resolve, and is not meant to."""
-    if not (cfg.calib_gps_rotation_check and np.isfinite(turn.gps_deg)
+    if not (cfg.calib_gps_rotation_check and np.isfinite(window.gps_rotation_deg)
             and np.isfinite(window.gps_rotation_std_deg)):
         return None
-    bound = turn.gps_deg + max(cfg.calib_gps_rotation_min_slack_deg,
-                               cfg.calib_gps_rotation_sigmas * window.gps_rotation_std_deg)
-    if turn.recon_deg > bound:
-        return (f"turns {turn.recon_deg:.0f} deg where the GPS turns {turn.gps_deg:.0f} "
+    bound = window.gps_rotation_deg + max(cfg.calib_gps_rotation_min_slack_deg,
+                                          cfg.calib_gps_rotation_sigmas
+                                          * window.gps_rotation_std_deg)
+    if rotation > bound:
+        return (f"turns {rotation:.0f} deg where the GPS turns {window.gps_rotation_deg:.0f} "
                 f"(at most {bound:.0f}): a focal length far too short does that")
     return None
 
@@ -411,26 +327,22 @@ def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     return text
 
 
-def _trial(window: CalibrationWindow, res: WindowResult, turn: GpsTurn,
-           cfg: PipelineConfig) -> str:
-    """One candidate's line; ``turn``: its reconstruction's turn and the GPS's over the same
-    frames (``gps_turn``)."""
+def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) -> str:
+    """One candidate's line; ``gps_turn_deg``: its reconstruction's turn over the frames the GPS
+    measured (``_rotation_where_gps_measured``)."""
     if res.error:
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
     spread = f", {spread}" if spread else ""
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
-    gps = ""
-    if np.isfinite(turn.gps_deg):
-        gps = f" (GPS {turn.gps_deg:.0f} ± {window.gps_rotation_std_deg:.1f}"
-        if turn.matched:
-            gps += (f", where it turns {turn.recon_deg:.1f}, over {turn.frames} of its frames "
-                    f"at {cfg.calib_gps_chord_m:g} m of road)")
-        elif turn.frames < len(window.frame_idx):
-            gps += f" over {turn.frames} of its frames, where it turns {turn.recon_deg:.1f})"
-        else:
-            gps += ")"
+    gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
+           if np.isfinite(window.gps_rotation_deg) else "")
+    if gps and window.gps_frame_idx is not None and len(window.gps_frame_idx) < len(
+            window.frame_idx):
+        gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f} over "
+               f"{len(window.gps_frame_idx)} of its frames, where it turns "
+               f"{gps_turn_deg:.1f})")
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
@@ -526,10 +438,10 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
-        turn = gps_turn(window, res, frame_names, cfg)
+        gps_turn_deg = _rotation_where_gps_measured(window, res, frame_names)
         why = (judge_window(res, cfg, agreement_may_follow=True)
-               or _turns_beyond_gps(window, turn, cfg))
-        trial = _trial(window, res, turn, cfg)
+               or _turns_beyond_gps(window, gps_turn_deg, cfg))
+        trial = _trial(window, res, gps_turn_deg)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:

@@ -188,12 +188,9 @@ def gps_rotation(windows: list[CalibrationWindow], xyz_gps: np.ndarray, sigma_m:
         if len(measured) < 2:  # nothing the GPS can measure: the check is skipped
             out.append(w)
             continue
-        heading_deg = turns.chord_heading_deg(xy_m, s_m, at_m, config.calib_gps_chord_m)
-        heading_deg[~np.isin(w.frame_idx, measured)] = np.nan
         out.append(replace(w, gps_rotation_deg=turns.chord_rotation_deg(
                                xy_m, s_m, measured, config.calib_gps_chord_m),
-                           gps_rotation_std_deg=std_deg, gps_frame_idx=measured,
-                           gps_s_m=at_m, gps_heading_deg=heading_deg))
+                           gps_rotation_std_deg=std_deg, gps_frame_idx=measured))
     return out
 
 
