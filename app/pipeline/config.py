@@ -163,13 +163,6 @@ class PipelineConfig(BaseModel):
     # c0060; c0004 and c0060 run with it on: unchanged), so it changes nothing there
     # (bench/results/2026-11-27-calib-alone-registered.md). On the unseen seed-256 check half it
     # fired on no journey either: a guard with no evidence for or against it yet.
-    # Measured, not yet taken (2026-11-28, bench/results/2026-11-28-alone-focal-std.md): over the
-    # records' windows accepted alone under 0.35 px, fx was off by more than 1 % on 4 of 126
-    # tuning ones with stage 2's fx sigma under 0.2 % and on 5 of 14 above it.
-    calib_alone_max_focal_std: float = Field(
-        0.0, ge=0.0, description="a candidate whose stage-2 fx sigma exceeds this fraction cannot "
-        "end the search on its reprojection error alone: it needs a window of other frames that "
-        "agrees (0: no such condition)")
     calib_alone_consistent: bool = Field(
         True, description="a candidate is not accepted on its reprojection error alone when a "
         "window kept before it fitted as sharply and lands on another camera: it needs a window "

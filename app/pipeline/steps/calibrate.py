@@ -233,16 +233,11 @@ def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
     return bool(cfg.calib_max_focal_std) and res.focal_std_rel > cfg.calib_max_focal_std
 
 
-def _too_loose_alone(res: WindowResult, cfg: PipelineConfig) -> bool:
-    return bool(cfg.calib_alone_max_focal_std) and res.focal_std_rel > cfg.calib_alone_max_focal_std
-
-
 def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
     """Why a usable candidate cannot end the search on its own but needs another window to agree
-    ("" when agreement is always required), or None when it can: stage 2 pins its fx (to
-    ``calib_alone_max_focal_std`` where set), it is under the sharp-image error, it registered
-    at least ``calib_alone_min_registered_ratio`` of its frames and it turns at least
-    ``calib_alone_min_rotation_deg``. A camera that leaves a
+    ("" when agreement is always required), or None when it can: stage 2 pins its fx, it is
+    under the sharp-image error, it registered at least ``calib_alone_min_registered_ratio`` of
+    its frames and it turns at least ``calib_alone_min_rotation_deg``. A camera that leaves a
     third of the window unregistered may be one the rest of the window does not fit."""
     if _focal_uncertain(res, cfg):
         return f"fx uncertain by {100 * res.focal_std_rel:.2f} %"
@@ -250,9 +245,6 @@ def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
         return ""
     if res.reprojection_error_px > cfg.calib_accept_reprojection_px:
         return f"above {cfg.calib_accept_reprojection_px:g} px"
-    if _too_loose_alone(res, cfg):
-        return (f"fx uncertain by {100 * res.focal_std_rel:.2f} %, over "
-                f"{100 * cfg.calib_alone_max_focal_std:g} % to stand alone")
     if len(res.image_names) < cfg.calib_alone_min_registered_ratio * res.n_input:
         return (f"only {len(res.image_names)}/{res.n_input} registered, under "
                 f"{100 * cfg.calib_alone_min_registered_ratio:g} %")
@@ -265,17 +257,15 @@ def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
 def _contradicts(res: WindowResult, kept: list[tuple[CalibrationWindow, WindowResult]],
                  cfg: PipelineConfig) -> str | None:
     """Why ``res`` may not stand alone against the candidates ``kept`` before it, or None: one of
-    them fitted as sharply (under ``calib_accept_reprojection_px``, fx pinned enough to stand
-    alone), was kept only because it could not stand alone (it turned too little, say), and
-    lands on another camera.
+    them fitted as sharply (under ``calib_accept_reprojection_px``, fx pinned), was kept only
+    because it could not stand alone (it turned too little, say), and lands on another camera.
     Two sharp windows that disagree cannot both be right, and the search has no reason to trust
     the later one."""
     if not cfg.calib_alone_consistent:
         return None
     for window, other in kept:
         if (other.reprojection_error_px <= cfg.calib_accept_reprojection_px
-                and not _focal_uncertain(other, cfg) and not _too_loose_alone(other, cfg)
-                and not _agree(other.camera, res.camera, cfg)):
+                and not _focal_uncertain(other, cfg) and not _agree(other.camera, res.camera, cfg)):
             return (f"disagrees with {window.label} (fx {other.camera.fx:.0f}, "
                     f"{other.reprojection_error_px:.2f} px)")
     return None
