@@ -189,6 +189,8 @@ class PipelineConfig(BaseModel):
     # one road agreeing within 0.7 % of the lens at 0.37-0.41 px. Chosen on the records of
     # 2026-11-26..28 (bench/results/2026-11-28-shared-road.md): agreeing pairs of one road, each
     # turning >= 45 deg, right up to 0.43 px, the two wrong ones at 0.49 (a check half) and 0.57.
+    # Since then a wrong pair under it was seen (tuning c0516, fx +4.2 % at 0.30/0.39 px, reached
+    # only with a knob not shipped: bench/results/2026-11-28-alone-focal-std.md).
     calib_shared_road_max_px: float = Field(
         0.45, ge=0.0, description="when no candidate calibrated otherwise, two that share most of "
         "their road, agree, each turn at least calib_alone_min_rotation_deg and fit under this "
