@@ -195,6 +195,10 @@ class PipelineConfig(BaseModel):
         0.45, ge=0.0, description="when no candidate calibrated otherwise, two that share most of "
         "their road, agree, each turn at least calib_alone_min_rotation_deg and fit under this "
         "error (px) are accepted (0: never)")
+    calib_split_spread: bool = Field(
+        False, description="measure each candidate's stage 2 again on parts of its points "
+        "(near against far, short tracks against long) and report how far they disagree "
+        "(colmap.refine.split_spread; ~4 more bundle adjustments a window)")
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")

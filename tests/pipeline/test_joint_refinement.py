@@ -9,10 +9,12 @@ from app.pipeline.steps.calibrate import CalibrationWindow, joint_partner
 TRUE_PARAMS = [800.0, 804.0, 640.5, 360.5, -0.2, 0.08, 0.0, 0.0]  # OPENCV, COLMAP pixels
 
 
-def _window(pycolmap, rng, yaw0_deg: float, noise_px: float = 0.0):
+def _window(pycolmap, rng, yaw0_deg: float, noise_px: float = 0.0,
+            near_focal_scale: float = 1.0):
     """12 cameras turning 55 deg about the vertical while driving a curve among 800 points
-    12-40 m around, observed through TRUE_PARAMS with ``noise_px`` of Gaussian noise; a
-    reconstruction of its own frame."""
+    12-40 m around, observed through TRUE_PARAMS with ``noise_px`` of Gaussian noise (the points
+    nearer than 20 m through focal lengths ``near_focal_scale`` times theirs: a systematic error
+    that depends on depth); a reconstruction of its own frame."""
     camera = pycolmap.Camera(model="OPENCV", width=1280, height=720, params=TRUE_PARAMS,
                              camera_id=1)
     rec = pycolmap.Reconstruction()
@@ -32,6 +34,8 @@ def _window(pycolmap, rng, yaw0_deg: float, noise_px: float = 0.0):
         xyz_cam = (pose.matrix()[:, :3] @ xyz_world.T).T + pose.matrix()[:, 3]
         seen = np.flatnonzero(xyz_cam[:, 2] > 1.0)
         xy = camera.img_from_cam(xyz_cam[seen]) + rng.normal(0.0, noise_px, (len(seen), 2))
+        near = range_m[seen] < 20
+        xy[near] = (xy[near] - TRUE_PARAMS[2:4]) * near_focal_scale + TRUE_PARAMS[2:4]
         keep = (xy[:, 0] > 0) & (xy[:, 0] < 1280) & (xy[:, 1] > 0) & (xy[:, 1] < 720)
         image = pycolmap.Image(name=f"{image_id}.jpg", camera_id=1, image_id=image_id,
                                points2D=pycolmap.Point2DList(
@@ -86,6 +90,26 @@ def test_stage_2_gives_each_intrinsic_a_standard_deviation_that_covers_its_error
     # pins the principal point to a few pixels at best (here 1.9 and 2.9 px).
     assert np.all(np.abs(error) < 4 * std), (error, std)
     assert std[2] < 5.0 and std[3] < 5.0 and std[0] / TRUE_PARAMS[0] < 0.01, std
+
+
+def test_near_and_far_points_disagree_where_the_error_depends_on_depth():
+    """``refine.split_spread``: stage 2 on the near and the far half of a window's points lands
+    on different cameras when near points are seen through another focal length (a systematic
+    error the covariance cannot see), while a random half of the points agrees with the other."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import refine_all_intrinsics, split_spread
+
+    spread = {}
+    for scale in (1.0, 1.02):
+        rec = _window(pycolmap, np.random.default_rng(5), 0.0, noise_px=0.3,
+                      near_focal_scale=scale)
+        refine_all_intrinsics(pycolmap, rec, aspect_sigma=0.005, threads=1)
+        spread[scale] = split_spread(pycolmap, rec, aspect_sigma=0.005, threads=1)
+        assert set(spread[scale]) == {"depth", "track", "random"}
+        assert all(v.shape == (6,) and np.all(np.isfinite(v)) for v in spread[scale].values())
+    fx_depth = {scale: s["depth"][0] / TRUE_PARAMS[0] for scale, s in spread.items()}
+    assert fx_depth[1.02] > 0.02 and fx_depth[1.02] > 1.5 * fx_depth[1.0], fx_depth
+    assert spread[1.02]["random"][0] < spread[1.02]["depth"][0] / 3, spread[1.02]
 
 
 def _cw(first: int, last: int, vertex: int) -> CalibrationWindow:

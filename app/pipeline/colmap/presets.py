@@ -36,6 +36,7 @@ class MappingOptions:
     ba_function_tolerance: float = 1e-6
     aspect_prior_sigma: float = 0.0  # stage 2: prior fx = fy with this relative sigma (0: none)
     stage1_k2: bool = False  # stage 1 maps with k1 and k2 (COLMAP RADIAL), not k1 alone
+    split_spread: bool = False  # stage 2 again on parts of the points (``refine.split_spread``)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -151,6 +151,45 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     return std
 
 
+def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
+                 threads: int = -1) -> dict[str, np.ndarray]:
+    """How far stage 2 moves when it sees only part of ``rec``'s points (``rec`` is refined
+    already and left untouched): for each split, |a - b| (6,) of fx, fy, cx, cy (px), k1, k2
+    between stage 2 on one part and on the other. ``depth``: points nearer than the median (in
+    the first image that sees them) against the rest; ``track``: points seen by at most 3 images
+    against longer tracks; ``random``: by the parity of the point's id (what noise alone gives).
+
+    Stage 2's covariance assumes independent pixel noise. On tuning journeys of seeds 454-734 the
+    data preferred the wrong camera (stage 2 started from the true one went back to it; the
+    reprojection error was lower there by 400-1700 in chi-square) and parts of one window's
+    points disagreed by 10-70 px in cy and 1-9 % in fx where the covariance claimed 0.5 px and
+    0.3 % (2026-11-29): small systematic errors of the features, which one window cannot
+    average away. The parts' disagreement is a measure of that."""
+    depth, length = {}, {}
+    for point_id, point in rec.points3D.items():
+        first = point.track.elements[0]
+        depth[point_id] = (rec.image(first.image_id).cam_from_world() * point.xyz)[2]
+        length[point_id] = point.track.length()
+    if len(depth) < 20:
+        return {}
+    median = float(np.median(list(depth.values())))
+    splits = {"depth": lambda pid: depth[pid] < median, "track": lambda pid: length[pid] <= 3,
+              "random": lambda pid: pid % 2 == 0}
+    out = {}
+    for name, in_first in splits.items():
+        parts = []
+        for keep_first in (True, False):
+            part = pycolmap.Reconstruction(rec)
+            for point_id in list(depth):
+                if in_first(point_id) != keep_first:
+                    part.delete_point3D(point_id)
+            refine_all_intrinsics(pycolmap, part, function_tolerance=function_tolerance,
+                                  aspect_sigma=aspect_sigma, threads=threads)
+            parts.append(np.asarray(next(iter(part.cameras.values())).params, float)[:6])
+        out[name] = np.abs(parts[0] - parts[1])
+    return out
+
+
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:
     pycolmap.ObservationManager(rec).filter_all_points3D(max_error_px, 1.5)
 

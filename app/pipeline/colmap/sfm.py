@@ -93,6 +93,9 @@ class WindowResult:
     # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
     # each in its own model frame and scale.
     others: list["WindowResult"] = field(default_factory=list)
+    # With ``MappingOptions.split_spread``: stage 2's disagreement between parts of the points,
+    # per split (``refine.split_spread``).
+    split_spread: dict[str, tuple[float, ...]] = field(default_factory=dict)
     # The focal length (px) stage 1 started from when this is the mapping of a retry
     # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
     retry_focal_px: float = float("nan")
@@ -406,14 +409,20 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
-    std = None
+    std, spread = None, {}
     if window.calibrate:
-        from app.pipeline.colmap.refine import refine_all_intrinsics
+        from app.pipeline.colmap.refine import refine_all_intrinsics, split_spread
         std = refine_all_intrinsics(
             pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
             aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
+        if job.mapping.split_spread:
+            spread = split_spread(pycolmap, rec,
+                                  function_tolerance=job.mapping.ba_function_tolerance,
+                                  aspect_sigma=job.mapping.aspect_prior_sigma,
+                                  threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
                             with_depths=window.keypoint_depths)
+    result.split_spread = {k: tuple(float(x) for x in v) for k, v in spread.items()}
     if std is not None:
         result.intrinsics_std = tuple(float(v) for v in std)
         result.focal_std_rel = float(std[0]) / result.camera.fx

@@ -126,7 +126,8 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
     return MappingOptions(ba_max_refinements=cfg.ba_max_refinements,
                           ba_function_tolerance=cfg.ba_function_tolerance,
                           aspect_prior_sigma=cfg.calib_aspect_prior_sigma,
-                          stage1_k2=cfg.calib_stage1_k2)
+                          stage1_k2=cfg.calib_stage1_k2,
+                          split_spread=cfg.calib_split_spread)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:

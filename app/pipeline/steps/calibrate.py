@@ -334,6 +334,12 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
     spread = f", {spread}" if spread else ""
+    for name, d in res.split_spread.items():
+        spread += (f", {name} split fx {100 * d[0] / res.camera.fx:.2f} %, cx {d[2]:.1f}, "
+                   f"cy {d[3]:.1f} px, k1 {d[4]:.4f}")
+    if res.split_spread:  # the whole camera, so the bench can score every candidate
+        c = res.camera
+        spread += f" (fy {c.fy:.1f}, cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.4f})"
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
