@@ -104,7 +104,11 @@ def test_near_and_far_points_disagree_where_the_error_depends_on_depth():
         rec = _window(pycolmap, np.random.default_rng(5), 0.0, noise_px=0.3,
                       near_focal_scale=scale)
         refine_all_intrinsics(pycolmap, rec, aspect_sigma=0.005, threads=1)
+        before = (rec.num_points3D(), np.array(rec.camera(1).params))
         spread[scale] = split_spread(pycolmap, rec, aspect_sigma=0.005, threads=1)
+        # The window's own reconstruction is left as it was: the parts are copies.
+        assert rec.num_points3D() == before[0]
+        assert np.array_equal(np.asarray(rec.camera(1).params), before[1])
         assert set(spread[scale]) == {"depth", "track", "random"}
         assert all(v.shape == (6,) and np.all(np.isfinite(v)) for v in spread[scale].values())
     fx_depth = {scale: s["depth"][0] / TRUE_PARAMS[0] for scale, s in spread.items()}
