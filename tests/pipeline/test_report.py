@@ -44,6 +44,18 @@ def test_self_calibration_lists_every_candidate_it_tried():
                          "turns 60.0 deg: accepted, under 0.35 px")
 
 
+def test_a_candidate_measured_on_parts_of_its_points_says_how_far_they_disagree():
+    window = CalibrationWindow(np.arange(30), 15)
+    result = _result(0.2)
+    result.split_spread = {"depth": (19.18, 19.0, 2.5, 7.75, 0.0123, 0.02)}
+    trials: list[str] = []
+    self_calibrate([window], PipelineConfig(), lambda w, start: result, width=1242, height=375,
+                   trials=trials)
+    assert trials == ["frames 0-29: 30/30 registered, 0.20 px, fx 959.0, depth split fx 2.00 %, "
+                      "cx 2.5, cy 7.8 px, k1 0.0123 (fy 959.0, cx 621.0, cy 187.0, k1 -0.3700), "
+                      "turns 60.0 deg: accepted, under 0.35 px"]
+
+
 def test_stage_reports_round_trip_through_json():
     r = StageReport("calibrate", "failed: no turn", ("frames 0-21: refused, only 3/22",))
     assert StageReport.from_json(json.loads(json.dumps(r.to_json()))) == r

@@ -317,8 +317,9 @@ def summary(calib: Calibration) -> str:
 def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     """Stage 2's own standard deviations of fx and the principal point, where it gave them ("":
     none, or a singular covariance). They say which intrinsics the frames pinned down and which
-    they did not; the errors measured on the corpus run larger than them (``bench corpus``
-    records both)."""
+    they did not. The errors measured on the corpus run larger than them, 2x in the median and
+    5-10x at the 90th percentile, because the features' errors are systematic, not independent
+    (``bench/results/2026-11-29-split-spread.md``; ``bench corpus`` records both)."""
     if not (np.isfinite(focal_std_rel) and focal_std_rel <= 1.0):
         return ""
     text = f"fx ± {100 * focal_std_rel:.2f} %"
