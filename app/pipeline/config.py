@@ -197,8 +197,8 @@ class PipelineConfig(BaseModel):
         "error (px) are accepted (0: never)")
     calib_split_spread: bool = Field(
         False, description="measure each candidate's stage 2 again on parts of its points "
-        "(near against far, short tracks against long) and report how far they disagree "
-        "(colmap.refine.split_spread; ~4 more bundle adjustments a window)")
+        "(near against far, short tracks against long, random halves) and report how far they "
+        "disagree (colmap.refine.split_spread: six more stage-2 runs, 6-10 s a window)")
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")
