@@ -162,7 +162,7 @@ def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, aspect_sigm
     Stage 2's covariance assumes independent pixel noise. On tuning journeys of seeds 454-734 the
     data preferred the wrong camera (stage 2 started from the true one went back to it; the
     reprojection error was lower there by 70-1700 in chi-square) and parts of one window's
-    points disagreed by 10-70 px in cy and 1-9 % in fx where the covariance claimed 0.5 px and
+    points disagreed by up to 60 px in cy and 9 % in fx where the covariance claimed 0.5 px and
     0.3 % (2026-11-29): small systematic errors of the features, which one window cannot
     average away. The parts' disagreement is a measure of that."""
     depth, length = {}, {}
