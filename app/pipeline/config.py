@@ -230,6 +230,8 @@ class PipelineConfig(BaseModel):
     ba_function_tolerance: float = Field(
         1e-6, description="bundle adjustments stop when an iteration gains less than this "
         "fraction of the cost (COLMAP's 0 runs them to their iteration limits)")
+    calib_stage2_max_iterations: int = Field(
+        100, ge=1, description="iterations each of stage 2's bundle adjustments may take")
     ba_max_refinements: int = Field(
         1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 

@@ -52,7 +52,8 @@ _FLAT = 1e8
 
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
-                   function_tolerance: float, aspect_sigma: float = 0.0,
+                   function_tolerance: float, max_iterations: int = 100,
+                   aspect_sigma: float = 0.0,
                    constant_frames: tuple[int, ...] = (), threads: int = -1,
                    covariance: bool = False) -> np.ndarray:
     """One bundle adjustment of ``rec`` in place; with ``covariance``, returns the standard
@@ -66,6 +67,7 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
                               refine_principal_point=principal_point,
                               **{"ceres.loss_function_scale": loss_scale_px,
                                  "ceres.solver_options.function_tolerance": function_tolerance,
+                                 "ceres.solver_options.max_num_iterations": max_iterations,
                                  "ceres.solver_options.num_threads": threads})
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
@@ -117,7 +119,8 @@ def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
-                          function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
+                          function_tolerance: float = 1e-6, max_iterations: int = 100,
+                          aspect_sigma: float = 0.0,
                           constant_frames: tuple[int, ...] = (), threads: int = -1) -> np.ndarray:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
     the standard deviations (6,) of ``INTRINSICS_STD`` from COLMAP's covariance of its solution
@@ -131,7 +134,9 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
 
     ``function_tolerance``: Ceres stops when an iteration lowers the cost by less than this
     fraction. COLMAP's 0 ran both passes to 100 iterations: 7.7 s on turn-70's 22 images, 2.4 s
-    at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23).
+    at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23). ``max_iterations``: the
+    limit of each adjustment; a stage 1 far off can need more than 100 iterations down stage 2's
+    shallow valley (tuning c0800 stopped at fx -8.3 % after 100, reached -0.05 % within 1000).
 
     ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
     ``constant_frames``: frames whose pose is held, the gauge of the parts of a ``merged``
@@ -141,18 +146,19 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
-                   function_tolerance=function_tolerance, constant_frames=constant_frames,
-                   threads=threads)
+                   function_tolerance=function_tolerance, max_iterations=max_iterations,
+                   constant_frames=constant_frames, threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                         function_tolerance=function_tolerance, aspect_sigma=aspect_sigma,
+                         function_tolerance=function_tolerance, max_iterations=max_iterations,
+                         aspect_sigma=aspect_sigma,
                          constant_frames=constant_frames, threads=threads, covariance=True)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     return std
 
 
-def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, aspect_sigma: float = 0.0,
-                 threads: int = -1) -> dict[str, np.ndarray]:
+def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, max_iterations: int = 100,
+                 aspect_sigma: float = 0.0, threads: int = -1) -> dict[str, np.ndarray]:
     """How far stage 2 moves when it sees only part of ``rec``'s points (``rec`` is refined
     already and left untouched): for each split, |a - b| (6,) of fx, fy, cx, cy (px), k1, k2
     between stage 2 on one part and on the other. ``depth``: points nearer than the median (in
@@ -184,7 +190,8 @@ def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, aspect_sigm
                 if in_first(point_id) != keep_first:
                     part.delete_point3D(point_id)
             refine_all_intrinsics(pycolmap, part, function_tolerance=function_tolerance,
-                                  aspect_sigma=aspect_sigma, threads=threads)
+                                  max_iterations=max_iterations, aspect_sigma=aspect_sigma,
+                                  threads=threads)
             parts.append(np.asarray(next(iter(part.cameras.values())).params, float)[:6])
         out[name] = np.abs(parts[0] - parts[1])
     return out

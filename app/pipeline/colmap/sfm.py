@@ -414,10 +414,12 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         from app.pipeline.colmap.refine import refine_all_intrinsics, split_spread
         std = refine_all_intrinsics(
             pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
+            max_iterations=job.mapping.stage2_max_iterations,
             aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
         if job.mapping.split_spread:
             spread = split_spread(pycolmap, rec,
                                   function_tolerance=job.mapping.ba_function_tolerance,
+                                  max_iterations=job.mapping.stage2_max_iterations,
                                   aspect_sigma=job.mapping.aspect_prior_sigma,
                                   threads=job.process.threads)
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
@@ -457,6 +459,7 @@ def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) 
     t0 = time.perf_counter()
     rec, anchors = merged(pycolmap, [pycolmap.Reconstruction(d) for d in model_dirs])
     refine_all_intrinsics(pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
+                          max_iterations=job.mapping.stage2_max_iterations,
                           aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors,
                           threads=job.process.threads)
     result = _window_result(rec, [im.name for im in rec.images.values()], None)

@@ -127,7 +127,8 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
                           ba_function_tolerance=cfg.ba_function_tolerance,
                           aspect_prior_sigma=cfg.calib_aspect_prior_sigma,
                           stage1_k2=cfg.calib_stage1_k2,
-                          split_spread=cfg.calib_split_spread)
+                          split_spread=cfg.calib_split_spread,
+                          stage2_max_iterations=cfg.calib_stage2_max_iterations)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:
