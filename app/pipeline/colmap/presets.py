@@ -37,7 +37,7 @@ class MappingOptions:
     aspect_prior_sigma: float = 0.0  # stage 2: prior fx = fy with this relative sigma (0: none)
     stage1_k2: bool = False  # stage 1 maps with k1 and k2 (COLMAP RADIAL), not k1 alone
     split_spread: bool = False  # stage 2 again on parts of the points (``refine.split_spread``)
-    stage2_max_iterations: int = 100  # Ceres iterations each of stage 2's adjustments may take
+    stage2_max_iterations: int = 1000  # Ceres iterations each of stage 2's adjustments may take
 
 
 @dataclass(frozen=True, kw_only=True)
