@@ -52,7 +52,7 @@ _FLAT = 1e8
 
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
-                   function_tolerance: float, max_iterations: int = 100,
+                   function_tolerance: float, max_iterations: int,
                    aspect_sigma: float = 0.0,
                    constant_frames: tuple[int, ...] = (), threads: int = -1,
                    covariance: bool = False) -> np.ndarray:
@@ -119,7 +119,7 @@ def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
 
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
-                          function_tolerance: float = 1e-6, max_iterations: int = 100,
+                          function_tolerance: float = 1e-6, max_iterations: int = 1000,
                           aspect_sigma: float = 0.0,
                           constant_frames: tuple[int, ...] = (), threads: int = -1) -> np.ndarray:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
@@ -157,7 +157,7 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     return std
 
 
-def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, max_iterations: int = 100,
+def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, max_iterations: int = 1000,
                  aspect_sigma: float = 0.0, threads: int = -1) -> dict[str, np.ndarray]:
     """How far stage 2 moves when it sees only part of ``rec``'s points (``rec`` is refined
     already and left untouched): for each split, |a - b| (6,) of fx, fy, cx, cy (px), k1, k2
