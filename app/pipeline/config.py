@@ -52,6 +52,11 @@ class PipelineConfig(BaseModel):
     # images) fell into more wrong minima: 3 accepted 5-39 % off instead of 1 (tuning half of the
     # 64-journey corpus, 2026-11-25, bench/results/2026-11-25-calib-windows.md). Above 36 m = on.
     calib_window_max_m: float = Field(36.0, description="longest road a candidate spans, metres")
+    calib_long_window_max_m: float = Field(
+        0.0, description="after every ordinary candidate is refused, one more per wide curve "
+        "spanning the whole curve plus calib_window_m, up to this many metres (0: none)")
+    calib_long_window_images: int = Field(
+        33, description="images a whole-curve candidate maps (calib_long_window_max_m)")
     # 0.5 on the tuning half: a 180 deg U-turn at 17 m/s calibrated (13/22 registered before),
     # fx p90 1.26 -> 1.03 %, k1 p90 11 -> 7 %; one more journey within every bar.
     calib_rotation_share: float = Field(

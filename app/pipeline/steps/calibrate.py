@@ -114,7 +114,37 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
             if len(frames) >= cfg.calib_min_images and key not in seen:
                 seen.add(key)
                 out.append(CalibrationWindow(frames, turn.vertex))
-    return out[: cfg.calib_max_candidates]
+    return out[: cfg.calib_max_candidates] + _whole_curve_windows(ranked, s_m, rot_deg, cfg, seen)
+
+
+def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.ndarray,
+                         cfg: PipelineConfig, seen: set[tuple[int, ...]]
+                         ) -> list[CalibrationWindow]:
+    """The last candidates (``calib_long_window_max_m``; none when 0): one per wide curve, centred
+    on it and spanning all of it plus ``calib_window_m``, with ``calib_long_window_images``
+    frames. A window of fixed length sees 35-46 deg of a 45-60 m radius turn, and stage 2 leaves
+    its fx loose; tried first, such windows fell into wrong minima (2026-11-25-calib-windows),
+    so they come only after every ordinary candidate has been refused."""
+    if cfg.calib_long_window_max_m <= 0:
+        return []
+    out = []
+    for turn in ranked:
+        span_m = min(cfg.calib_window_m + turn.curve_m, cfg.calib_long_window_max_m,
+                     float(s_m[-1] - s_m[0]))
+        if span_m < LONG_WINDOW_MIN_RATIO * max(cfg.calib_window_m, 1e-9):
+            continue  # about the ordinary span: its candidates covered this curve
+        lo_m = float(np.clip(s_m[turn.vertex] - 0.5 * span_m, s_m[0], s_m[-1] - span_m))
+        frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, cfg.calib_long_window_images,
+                                cfg.calib_rotation_share)
+        key = tuple(frames.tolist())
+        if len(frames) >= cfg.calib_min_images and key not in seen:
+            seen.add(key)
+            out.append(CalibrationWindow(frames, turn.vertex))
+    return out
+
+
+# A whole-curve candidate is tried only for a curve this many times longer than an ordinary window.
+LONG_WINDOW_MIN_RATIO = 1.5
 
 
 def initial_camera(width: int, height: int, cfg: PipelineConfig,
