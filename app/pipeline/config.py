@@ -52,8 +52,11 @@ class PipelineConfig(BaseModel):
     # images) fell into more wrong minima: 3 accepted 5-39 % off instead of 1 (tuning half of the
     # 64-journey corpus, 2026-11-25, bench/results/2026-11-25-calib-windows.md). Above 36 m = on.
     calib_window_max_m: float = Field(36.0, description="longest road a candidate spans, metres")
+    # Tuning journeys of seeds 0-831 that failed with a turn of 45 deg or more on a curve of
+    # 18 m radius or more: 5 of 9 calibrated (3 within every bar, c0458 +1.5 %, c0574 +2.0 %),
+    # none more than 3 % off; bench/results/2026-11-29-whole-curve.md.
     calib_long_window_max_m: float = Field(
-        0.0, description="after every ordinary candidate is refused, one more per wide curve "
+        150.0, description="after every ordinary candidate is refused, one more per wide curve "
         "spanning the whole curve plus calib_window_m, up to this many metres (0: none)")
     calib_long_window_images: int = Field(
         33, description="images a whole-curve candidate maps (calib_long_window_max_m)")

@@ -140,6 +140,37 @@ def test_the_first_window_covers_a_wide_curve_not_only_part_of_it(radius_m, turn
     assert len(frames) == cfg.calib_images
 
 
+@pytest.mark.parametrize("radius_m, turn_deg, whole", [(50.0, 141.0, True), (60.0, 80.0, True),
+                                                      (6.0, 82.0, False)])
+def test_a_wide_curve_gets_one_whole_curve_candidate_after_the_ordinary_ones(radius_m, turn_deg,
+                                                                             whole):
+    # Tuning journeys whose every 36 m window left fx loose on a 45-60 m radius curve calibrated
+    # on a window spanning the whole curve (bench/results/2026-11-29-whole-curve.md).
+    from app.pipeline.steps.calibrate import candidate_windows
+    from app.pipeline.steps.turns import cumulative_rotation_deg, find_turns, track_length_m
+
+    step_m = 0.5
+    theta = np.arange(0.0, np.radians(turn_deg), step_m / radius_m)
+    heading = np.concatenate([np.zeros(200), theta, np.full(200, theta[-1])])
+    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    s_m = track_length_m(xy)
+    turns = find_turns(xy)
+    rot_deg = cumulative_rotation_deg(xy, s_m)
+    ordinary = candidate_windows(turns, s_m, PipelineConfig(calib_long_window_max_m=0.0), rot_deg)
+    cfg = PipelineConfig()
+    windows = candidate_windows(turns, s_m, cfg, rot_deg)
+    # The ordinary candidates come first and are unchanged: journeys that calibrate today do so
+    # on the same frames.
+    assert [w.frame_idx.tolist() for w in windows[:len(ordinary)]] == [
+        w.frame_idx.tolist() for w in ordinary]
+    assert len(windows) == len(ordinary) + whole
+    if whole:
+        frames = windows[-1].frame_idx
+        assert len(frames) == cfg.calib_long_window_images
+        assert np.degrees(heading[frames[-1]] - heading[frames[0]]) >= 0.85 * turn_deg
+        assert s_m[frames[-1]] - s_m[frames[0]] <= cfg.calib_long_window_max_m + step_m
+
+
 def test_images_spread_by_heading_change_crowd_into_a_sharp_turn():
     # A U-turn of 7 m radius, 1.4 m between frames (14 m/s at 10 Hz): by distance alone the
     # window's images are up to 23 deg apart in the turn, more than a 13/22-registered U-turn
