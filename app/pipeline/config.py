@@ -56,7 +56,7 @@ class PipelineConfig(BaseModel):
     # 18 m radius or more: 5 of 9 calibrated (3 within every bar, c0458 +1.5 %, c0574 +2.0 %),
     # none more than 3 % off; bench/results/2026-11-29-whole-curve.md.
     calib_long_window_max_m: float = Field(
-        150.0, description="after every ordinary candidate is refused, one more per wide curve "
+        150.0, description="when no ordinary candidate ended the search, one more per wide curve "
         "spanning the whole curve plus calib_window_m, up to this many metres (0: none)")
     calib_long_window_images: int = Field(
         33, description="images a whole-curve candidate maps (calib_long_window_max_m)")

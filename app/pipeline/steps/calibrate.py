@@ -18,9 +18,10 @@ it); otherwise, above that error, or when stage 2's covariance leaves its fx loo
 window of other frames that lands on the same camera. A window that registers too few frames from
 the first focal guess is mapped again from others (``calib_retry_focal_factors``, in
 ``colmap.sfm``, where its features already are).
-When none calibrated, two windows of one road that agree, each turning enough and fitting well
-(``calib_shared_road_max_px``), are the last resort. Anything else is refused with every
-candidate's reason.
+Only when no ordinary candidate ended the search, a wide curve gets one window spanning all of it
+(``calib_long_window_max_m``). When none calibrated, two windows of one road that agree, each
+turning enough and fitting well (``calib_shared_road_max_px``), are the last resort. Anything
+else is refused with every candidate's reason.
 """
 
 from __future__ import annotations
@@ -85,7 +86,8 @@ def _spread_frames(s_m: np.ndarray, rot_deg: np.ndarray, lo_m: float, hi_m: floa
 
 def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineConfig,
                       rot_deg: np.ndarray | None = None) -> list[CalibrationWindow]:
-    """Candidate windows, strongest turn first, at most ``calib_max_candidates``.
+    """Candidate windows, strongest turn first, at most ``calib_max_candidates``, then the
+    whole-curve ones (``_whole_curve_windows``).
 
     ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``); ``rot_deg`` (N,):
     heading change accumulated up to each frame (``turns.cumulative_rotation_deg``). A window spans
@@ -120,11 +122,11 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
 def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.ndarray,
                          cfg: PipelineConfig, seen: set[tuple[int, ...]]
                          ) -> list[CalibrationWindow]:
-    """The last candidates (``calib_long_window_max_m``; none when 0): one per wide curve, centred
-    on it and spanning all of it plus ``calib_window_m``, with ``calib_long_window_images``
-    frames. A window of fixed length sees 35-46 deg of a 45-60 m radius turn, and stage 2 leaves
-    its fx loose; tried first, such windows fell into wrong minima (2026-11-25-calib-windows),
-    so they come only after every ordinary candidate has been refused."""
+    """The last candidates (``calib_long_window_max_m``; none when 0), mapped only when no ordinary
+    one ended the search: one per wide curve, centred on it and spanning all of it plus
+    ``calib_window_m``, with ``calib_long_window_images`` frames. A window of fixed length sees
+    35-46 deg of a 45-60 m radius turn, and stage 2 leaves its fx loose; tried first, such windows
+    fell into wrong minima (2026-11-25-calib-windows), so they come after every ordinary one."""
     if cfg.calib_long_window_max_m <= 0:
         return []
     out = []
