@@ -109,13 +109,10 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
             span_m = min(max(min(cfg.calib_window_m + turn.curve_m, cfg.calib_window_max_m),
                              (cfg.calib_window_min_frames - 1) * step_m),
                          float(s_m[-1] - s_m[0]))
-            lo_m = float(np.clip(s_m[turn.vertex] + offset * span_m, s_m[0], s_m[-1] - span_m))
-            frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, cfg.calib_images,
-                                    cfg.calib_rotation_share)
-            key = tuple(frames.tolist())
-            if len(frames) >= cfg.calib_min_images and key not in seen:
-                seen.add(key)
-                out.append(CalibrationWindow(frames, turn.vertex))
+            window = _new_window(s_m, rot_deg, s_m[turn.vertex] + offset * span_m, span_m,
+                                 cfg.calib_images, turn.vertex, cfg, seen)
+            if window is not None:
+                out.append(window)
     return out[: cfg.calib_max_candidates] + _whole_curve_windows(ranked, s_m, rot_deg, cfg, seen)
 
 
@@ -135,14 +132,26 @@ def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.
                      float(s_m[-1] - s_m[0]))
         if span_m < LONG_WINDOW_MIN_RATIO * max(cfg.calib_window_m, 1e-9):
             continue  # about the ordinary span: its candidates covered this curve
-        lo_m = float(np.clip(s_m[turn.vertex] - 0.5 * span_m, s_m[0], s_m[-1] - span_m))
-        frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, cfg.calib_long_window_images,
-                                cfg.calib_rotation_share)
-        key = tuple(frames.tolist())
-        if len(frames) >= cfg.calib_min_images and key not in seen:
-            seen.add(key)
-            out.append(CalibrationWindow(frames, turn.vertex))
+        window = _new_window(s_m, rot_deg, s_m[turn.vertex] - 0.5 * span_m, span_m,
+                             cfg.calib_long_window_images, turn.vertex, cfg, seen)
+        if window is not None:
+            out.append(window)
     return out
+
+
+def _new_window(s_m: np.ndarray, rot_deg: np.ndarray, lo_m: float, span_m: float, n_images: int,
+                vertex: int, cfg: PipelineConfig, seen: set[tuple[int, ...]]
+                ) -> CalibrationWindow | None:
+    """The candidate of ``n_images`` frames over ``span_m`` of road from ``lo_m`` (moved inside
+    the journey), or None when it holds too few frames or its frames are in ``seen`` already
+    (they join it)."""
+    lo_m = float(np.clip(lo_m, s_m[0], s_m[-1] - span_m))
+    frames = _spread_frames(s_m, rot_deg, lo_m, lo_m + span_m, n_images, cfg.calib_rotation_share)
+    key = tuple(frames.tolist())
+    if len(frames) < cfg.calib_min_images or key in seen:
+        return None
+    seen.add(key)
+    return CalibrationWindow(frames, vertex)
 
 
 # A whole-curve candidate is tried only for a curve this many times longer than an ordinary window.
