@@ -116,6 +116,10 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
     return out[: cfg.calib_max_candidates] + _whole_curve_windows(ranked, s_m, rot_deg, cfg, seen)
 
 
+# A whole-curve candidate is tried only for a curve this many times longer than an ordinary window.
+LONG_WINDOW_MIN_RATIO = 1.5
+
+
 def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.ndarray,
                          cfg: PipelineConfig, seen: set[tuple[int, ...]]
                          ) -> list[CalibrationWindow]:
@@ -152,10 +156,6 @@ def _new_window(s_m: np.ndarray, rot_deg: np.ndarray, lo_m: float, span_m: float
         return None
     seen.add(key)
     return CalibrationWindow(frames, vertex)
-
-
-# A whole-curve candidate is tried only for a curve this many times longer than an ordinary window.
-LONG_WINDOW_MIN_RATIO = 1.5
 
 
 def initial_camera(width: int, height: int, cfg: PipelineConfig,
