@@ -119,6 +119,16 @@ def test_a_window_takes_a_standing_car_once_and_sparse_frames_widen_it():
     assert s_m[shorter[0].frame_idx[-1]] - s_m[shorter[0].frame_idx[0]] == pytest.approx(55.0)
 
 
+def _arc_track(step_m: float, radius_m: float, turn_deg: float, *, straight_frames: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Headings (N,) radians and positions (N, 2) metres of frames ``step_m`` apart: straight for
+    ``straight_frames``, an arc of ``radius_m`` turning ``turn_deg``, straight again."""
+    theta = np.arange(0.0, np.radians(turn_deg), step_m / radius_m)
+    heading = np.concatenate([np.zeros(straight_frames), theta,
+                              np.full(straight_frames, theta[-1])])
+    return heading, np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+
+
 @pytest.mark.parametrize("radius_m, turn_deg", [(50.0, 141.0), (60.0, 80.0), (6.0, 82.0)])
 def test_the_first_window_covers_a_wide_curve_not_only_part_of_it(radius_m, turn_deg):
     # Windows of fixed length saw 35-46 deg of 80-141 deg turns of 45-60 m radius, and those
@@ -127,9 +137,7 @@ def test_the_first_window_covers_a_wide_curve_not_only_part_of_it(radius_m, turn
     from app.pipeline.steps.turns import find_turns, track_length_m
 
     step_m = 0.5
-    theta = np.arange(0.0, np.radians(turn_deg), step_m / radius_m)
-    heading = np.concatenate([np.zeros(120), theta, np.full(120, theta[-1])])
-    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    heading, xy = _arc_track(step_m, radius_m, turn_deg, straight_frames=120)
     # The default keeps windows at 36 m: longer ones fell into more wrong minima on the corpus.
     cfg = PipelineConfig(calib_window_max_m=120.0)
     (turn,) = find_turns(xy)
@@ -150,9 +158,7 @@ def test_a_wide_curve_gets_one_whole_curve_candidate_after_the_ordinary_ones(rad
     from app.pipeline.steps.turns import cumulative_rotation_deg, find_turns, track_length_m
 
     step_m = 0.5
-    theta = np.arange(0.0, np.radians(turn_deg), step_m / radius_m)
-    heading = np.concatenate([np.zeros(200), theta, np.full(200, theta[-1])])
-    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    heading, xy = _arc_track(step_m, radius_m, turn_deg, straight_frames=200)
     s_m = track_length_m(xy)
     turns = find_turns(xy)
     rot_deg = cumulative_rotation_deg(xy, s_m)
@@ -179,9 +185,7 @@ def test_images_spread_by_heading_change_crowd_into_a_sharp_turn():
     from app.pipeline.steps.turns import cumulative_rotation_deg, find_turns, track_length_m
 
     step_m, radius_m = 1.4, 7.0
-    theta = np.arange(0.0, np.pi, step_m / radius_m)
-    heading = np.concatenate([np.zeros(40), theta, np.full(40, theta[-1])])
-    xy = np.cumsum(step_m * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    heading, xy = _arc_track(step_m, radius_m, 180.0, straight_frames=40)
     s_m = track_length_m(xy)
     turns = find_turns(xy)
     rot_deg = cumulative_rotation_deg(xy, s_m)
