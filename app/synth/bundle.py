@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 GPX_NS = "http://www.topografix.com/GPX/1/1"
 # Bumped whenever the same SynthConfig renders different files: caches of bundles key on it.
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"  # 2: mip levels sampled where cv2.pyrDown puts them
 
 
 def gps_csv(frame_ids, timestamps_s, lat_deg, lon_deg, alt_m) -> str:

@@ -211,9 +211,13 @@ def _level(log2_footprint_m: np.ndarray, texel_m) -> np.ndarray:
 
 def _sample(atlas: Atlas, tex: np.ndarray, col: np.ndarray, row: np.ndarray,
             level: np.ndarray) -> np.ndarray:
-    """Bilinear lookups (M, channels) float32; ``col``/``row`` in level-0 texel units."""
+    """Bilinear lookups (M, channels) float32; ``col``/``row`` in level-0 texel units (texel j
+    covers [j, j + 1)). ``cv2.pyrDown`` centres texel j of a level on texel 2j of the level
+    below, so texel j of level k sits at level-0 position 2^k j + 0.5, not 2^k (j + 0.5): the
+    latter slid every texture by (2^k - 1) / 2 level-0 texels, about 0.25-0.45 px in the image,
+    and by a different amount each time the level changed (generator 1's renders)."""
     scale = np.ldexp(np.float32(1.0), -level.astype(np.int32)).astype(np.float32)
-    x, y = col * scale - 0.5, row * scale - 0.5
+    x, y = (col - 0.5) * scale, (row - 0.5) * scale
     w, h, off = atlas.width[tex, level], atlas.height[tex, level], atlas.offset[tex, level]
     x0f, y0f = np.floor(x), np.floor(y)
     fx, fy = (x - x0f).astype(np.float32)[:, None], (y - y0f).astype(np.float32)[:, None]
