@@ -243,6 +243,9 @@ class PipelineConfig(BaseModel):
     # (bench/results/2026-11-29-stage2-iterations.md). A converged adjustment stops long before.
     calib_stage2_max_iterations: int = Field(
         1000, ge=1, description="iterations each of stage 2's bundle adjustments may take")
+    calib_stage2_refits: int = Field(
+        0, ge=0, description="bundle adjustments stage 2 runs again after it drops its "
+        "outlying observations (bench/results/2026-11-29-stage2-refit.md)")
     ba_max_refinements: int = Field(
         1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 

@@ -38,6 +38,7 @@ class MappingOptions:
     stage1_k2: bool = False  # stage 1 maps with k1 and k2 (COLMAP RADIAL), not k1 alone
     split_spread: bool = False  # stage 2 again on parts of the points (``refine.split_spread``)
     stage2_max_iterations: int = 1000  # Ceres iterations each of stage 2's adjustments may take
+    stage2_refits: int = 0  # stage 2: adjustments again after its last filter
 
 
 @dataclass(frozen=True, kw_only=True)

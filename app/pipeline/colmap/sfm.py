@@ -415,7 +415,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         std = refine_all_intrinsics(
             pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
             max_iterations=job.mapping.stage2_max_iterations,
-            aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
+            aspect_sigma=job.mapping.aspect_prior_sigma, refits=job.mapping.stage2_refits,
+            threads=job.process.threads)
         if job.mapping.split_spread:
             spread = split_spread(pycolmap, rec,
                                   function_tolerance=job.mapping.ba_function_tolerance,
@@ -461,7 +462,7 @@ def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) 
     refine_all_intrinsics(pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
                           max_iterations=job.mapping.stage2_max_iterations,
                           aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors,
-                          threads=job.process.threads)
+                          refits=job.mapping.stage2_refits, threads=job.process.threads)
     result = _window_result(rec, [im.name for im in rec.images.values()], None)
     result.n_input = n_input
     result.mapping_s = round(time.perf_counter() - t0, 3)

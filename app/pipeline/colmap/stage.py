@@ -128,7 +128,8 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
                           aspect_prior_sigma=cfg.calib_aspect_prior_sigma,
                           stage1_k2=cfg.calib_stage1_k2,
                           split_spread=cfg.calib_split_spread,
-                          stage2_max_iterations=cfg.calib_stage2_max_iterations)
+                          stage2_max_iterations=cfg.calib_stage2_max_iterations,
+                          stage2_refits=cfg.calib_stage2_refits)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:
