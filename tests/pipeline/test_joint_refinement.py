@@ -111,6 +111,40 @@ def test_stage_2_stopped_by_its_iteration_limit_is_not_at_its_minimum():
     assert np.allclose(fxy_error[1000], fxy_error[100], atol=1e-4), fxy_error
 
 
+def test_a_refit_adjusts_the_camera_to_the_observations_the_filter_kept():
+    """``refits``: stage 2 drops observations over 4 px after its last adjustment; a refit
+    adjusts again without them, so the observations it keeps fit the camera better than
+    they fit the unrefitted one (20 % of them pushed 4-30 px outward, as outliers do)."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import refine_all_intrinsics
+
+    result = {}
+    for refits in (0, 1):
+        rec = _window(pycolmap, np.random.default_rng(1), 0.0, noise_px=0.3)
+        rng = np.random.default_rng(101)
+        for image in rec.images.values():
+            for point in image.points2D:
+                if rng.random() < 0.2:
+                    outward = point.xy - TRUE_PARAMS[2:4]
+                    point.xy = point.xy + outward / np.linalg.norm(outward) * rng.uniform(4, 30)
+        rec.camera(1).params = np.array(TRUE_PARAMS) * [1.02, 1.02, 1, 1, 0.9, 0.8, 1, 1]
+        refine_all_intrinsics(pycolmap, rec, aspect_sigma=0.005, threads=1, refits=refits)
+        result[refits] = (rec.compute_mean_reprojection_error(),
+                          np.asarray(rec.camera(1).params)[:6])
+    assert result[1][0] < result[0][0] - 1e-3, result
+    assert not np.allclose(result[1][1], result[0][1], rtol=1e-5), result
+    # A refit does not wander: the camera stays where stage 2 found it, to well within 1 %.
+    assert np.allclose(result[1][1][:2], result[0][1][:2], rtol=0.005), result
+
+
+def test_pipeline_knobs_reach_colmap_s_mapping_options():
+    from app.pipeline.colmap.stage import _mapping
+    from app.pipeline.config import PipelineConfig
+
+    mapping = _mapping(PipelineConfig(calib_stage2_refits=2, calib_stage2_max_iterations=50))
+    assert (mapping.stage2_refits, mapping.stage2_max_iterations) == (2, 50)
+
+
 def test_near_and_far_points_disagree_where_the_error_depends_on_depth():
     """``refine.split_spread``: stage 2 on the near and the far half of a window's points lands
     on different cameras when near points are seen through another focal length (a systematic
