@@ -243,6 +243,8 @@ class PipelineConfig(BaseModel):
     # (bench/results/2026-11-29-stage2-iterations.md). A converged adjustment stops long before.
     calib_stage2_max_iterations: int = Field(
         1000, ge=1, description="iterations each of stage 2's bundle adjustments may take")
+    # 1 on the tuning half of seeds 832-863 (2026-11-29): c0838 fx +1.87 -> +1.21 %, c0848
+    # -0.57 -> -0.70 %, no journey into the bar, fy p90 0.77 -> 0.83 %: not taken.
     calib_stage2_refits: int = Field(
         0, ge=0, description="bundle adjustments stage 2 runs again after it drops its "
         "outlying observations (bench/results/2026-11-29-stage2-refit.md)")

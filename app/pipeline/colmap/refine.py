@@ -141,7 +141,8 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
     ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
     ``refits``: adjustments (every intrinsic free) after the last filter, each filtered in turn:
     the filter drops the outliers but not the pull they had on the camera (tuning c0838: fx
-    +2.2 %, +1.0 % after stage 2 ran again from its own result).
+    +2.2 %, +1.0 % after stage 2 ran again from its own result). One refit on a tuning half
+    helped that journey only (``PipelineConfig.calib_stage2_refits``, default 0).
     ``constant_frames``: frames whose pose is held, the gauge of the parts of a ``merged``
     reconstruction after the first (COLMAP's gauge fixes one connected part only).
     ``threads``: Ceres threads (-1: every core; 1 gives the same result on every run).
