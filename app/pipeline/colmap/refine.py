@@ -153,12 +153,7 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                    function_tolerance=function_tolerance, max_iterations=max_iterations,
                    constant_frames=constant_frames, threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                         function_tolerance=function_tolerance, max_iterations=max_iterations,
-                         aspect_sigma=aspect_sigma,
-                         constant_frames=constant_frames, threads=threads, covariance=True)
-    _filter_observations(pycolmap, rec, filter_max_error_px)
-    for _ in range(refits):
+    for _ in range(1 + refits):  # the second pass, then each refit: the same adjustment again
         std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
                              function_tolerance=function_tolerance,
                              max_iterations=max_iterations, aspect_sigma=aspect_sigma,
