@@ -105,6 +105,10 @@ class PipelineConfig(BaseModel):
     calib_stage1_k2: bool = Field(
         True, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")
+    # 0.32 and 0.30 measured on the generator-2 tuning halves (2026-11-29,
+    # bench/results/2026-11-29-accept-px.md): one more journey within every bar (c0866, fx -2.59
+    # -> +0.19 %), fx p90 0.87 -> 0.62 %, but the calibrate median of the journeys it moves +65 %
+    # (+93 % at 0.30): each later window costs 20-40 s. Not taken; the check halves were not run.
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     # A wrong minimum registers a few frames and stops, or registers all of them: the error and
