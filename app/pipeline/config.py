@@ -102,6 +102,9 @@ class PipelineConfig(BaseModel):
     calib_retry_focal_factors: tuple[float, ...] = Field(
         (0.5, 1.2), description="when a candidate window registers too few frames from the "
         "first focal guess, map it again from these multiples of the image width")
+    calib_share_features: bool = Field(
+        True, description="extract each frame's SIFT once for all calibration candidates "
+        "(colmap.sift_cache) instead of once per candidate; the candidates' databases are the same")
     calib_stage1_k2: bool = Field(
         True, description="stage 1 maps with k1 and k2 (COLMAP RADIAL) instead of the paper's "
         "k1 alone")

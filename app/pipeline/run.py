@@ -172,6 +172,11 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
              len(journey.frames), len(the_plan.turns), len(tracks), len(ego_windows))
 
+    # Keyed by image name: a work directory used again for another journey must not lend it
+    # the last one's features.
+    shared_sift = workdir / "sift_calibrate.db"
+    shared_sift.unlink(missing_ok=True)
+
     def calibrate_stage(window: CalibrationWindow, kind: str) -> StageSfm:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
         # the first candidate usually succeeds, and the others' features would be wasted.
@@ -179,7 +184,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
         first, last = window.frame_idx[0], window.frame_idx[-1]
         return StageSfm("calibrate", workdir / f"sfm_{kind}_{first}_{last}", journey,
                         window.frame_idx, step=step, front_end=config.calib_front_end,
-                        config=config, xyz_gps=xyz_gps, verbose=verbose)
+                        config=config, xyz_gps=xyz_gps, verbose=verbose,
+                        feature_cache=shared_sift if config.calib_share_features else None)
 
     def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
         n_images = len(window.frame_idx)

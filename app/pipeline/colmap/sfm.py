@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from app.pipeline.colmap import presets
+from app.pipeline.colmap import presets, sift_cache
 from app.pipeline.colmap.lifeline import die_with_parent
 from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
 from app.pipeline.types import CameraModel, PipelineError
@@ -121,6 +121,9 @@ class SfmJob:
     # Correspondences made elsewhere (KLT tracks) to import instead of extracting SIFT; then
     # ``extract_names`` must be empty and ``workdir`` gets a database of its own.
     imported: "ImportedFeatures | None" = None
+    # A database of SIFT features other stages of the journey extracted (``sift_cache``): images
+    # found there are not extracted again. None: extract every image into the stage's own.
+    feature_cache: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -265,9 +268,20 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float
     reader = presets.options(pycolmap, "ImageReaderOptions", presets.IMAGE_READER)
     extraction = presets.options(pycolmap, "FeatureExtractionOptions", {},
                                  **presets.sift_extraction(job.sift, job.process))
-    pycolmap.extract_features(database, job.image_dir, image_names=job.extract_names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+
+    def extract(into: Path, names: list[str]) -> None:
+        pycolmap.extract_features(into, job.image_dir, image_names=names,
+                                  camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                  extraction_options=extraction, device=pycolmap.Device.cpu)
+
+    if job.feature_cache is None:
+        extract(database, job.extract_names)
+    else:
+        missing = sift_cache.extract_into(job.feature_cache, job.extract_names, extract)
+        pycolmap.Database.open(database).close()  # COLMAP's schema, empty
+        sift_cache.write_database(job.feature_cache, database, job.extract_names)
+        log.info("SIFT: %d of %d images extracted, the others taken from the journey's cache",
+                 len(missing), len(job.extract_names))
     t1 = time.perf_counter()
     matching = presets.options(pycolmap, "FeatureMatchingOptions", {},
                                num_threads=job.process.threads)

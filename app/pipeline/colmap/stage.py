@@ -47,8 +47,9 @@ class StageSfm:
 
     def __init__(self, stage: str, workdir: Path, journey: Journey, frame_idx: np.ndarray, *,
                  step: int, front_end: str, config: PipelineConfig, xyz_gps: np.ndarray,
-                 verbose: bool):
+                 verbose: bool, feature_cache: Path | None = None):
         self.stage, self.workdir, self.journey, self.step = stage, workdir, journey, step
+        self.feature_cache = feature_cache  # SIFT shared with other stages (``sfm.SfmJob``)
         self.front_end, self.config, self.verbose = front_end, config, verbose
         self.frame_idx = np.asarray(frame_idx, int)
         self.priors = {journey.frames[i].path.name: tuple(xyz_gps[i]) for i in self.frame_idx}
@@ -95,7 +96,8 @@ class StageSfm:
                 overlap=cfg.match_overlap),
             mapping=_mapping(cfg), process=_process(cfg),
             verbose=self.verbose, prior_enu=self.priors,
-            prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported)
+            prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported,
+            feature_cache=self.feature_cache if extract else None)
         return sfm.run_sfm(job, on_mapped=on_mapped)
 
     def refine_jointly(self, parts: list[sfm.WindowResult]) -> sfm.WindowResult:
