@@ -33,7 +33,7 @@ def cached_names(cache: Path) -> set[str]:
 
 def extract_into(cache: Path, names: list[str],
                  extract: Callable[[Path, list[str]], None]) -> list[str]:
-    """Extract the ``names`` not in ``cache`` yet, with ``extract(database, names)``; returns them."""
+    """Extract the ``names`` not in ``cache`` yet with ``extract(database, names)``; those names."""
     missing = [n for n in names if n not in cached_names(cache)]
     if missing:
         extract(cache, missing)
@@ -42,17 +42,20 @@ def extract_into(cache: Path, names: list[str],
 
 def write_database(cache: Path, database: Path, names: list[str]) -> None:
     """Fill ``database`` (new, with COLMAP's schema and nothing in it) with the images ``names``
-    and their features from ``cache``, as a fresh extraction of ``names`` would."""
+    and their features from ``cache``, as a fresh extraction of ``names`` would. Names COLMAP
+    wrote no image for (it skips frames it cannot read) are left out, as it would leave them."""
     with sqlite3.connect(cache) as src, sqlite3.connect(database) as dst:
-        first = _image_row(src, names[0])
-        camera = src.execute("SELECT * FROM cameras WHERE camera_id = ?", (first[2],)).fetchone()
+        rows = [row for name in names if (row := _image_row(src, name)) is not None]
+        if not rows:
+            return
+        camera = src.execute("SELECT * FROM cameras WHERE camera_id = ?",
+                             (rows[0][2],)).fetchone()
         dst.execute(_insert("cameras", camera), (1, *camera[1:]))
         rig = src.execute("SELECT * FROM rigs WHERE ref_sensor_id = ? AND ref_sensor_type = ?",
-                          (first[2], CAMERA_SENSOR)).fetchone()
+                          (rows[0][2], CAMERA_SENSOR)).fetchone()
         dst.execute(_insert("rigs", rig), (1, 1, *rig[2:]))
-        for image_id, name in enumerate(names, start=1):
-            old = _image_row(src, name)
-            dst.execute(_insert("images", old), (image_id, name, 1, *old[3:]))
+        for image_id, old in enumerate(rows, start=1):
+            dst.execute(_insert("images", old), (image_id, old[1], 1, *old[3:]))
             (frame_id,) = src.execute(
                 "SELECT frame_id FROM frame_data WHERE data_id = ? AND sensor_type = ?",
                 (old[0], CAMERA_SENSOR)).fetchone()
@@ -63,14 +66,12 @@ def write_database(cache: Path, database: Path, names: list[str]) -> None:
             dst.execute(_insert("frame_data", data), (image_id, image_id, 1, *data[3:]))
             for table in ("keypoints", "descriptors"):
                 row = src.execute(f"SELECT * FROM {table} WHERE image_id = ?", (old[0],)).fetchone()
-                dst.execute(_insert(table, row), (image_id, *row[1:]))
+                if row is not None:
+                    dst.execute(_insert(table, row), (image_id, *row[1:]))
 
 
-def _image_row(db: sqlite3.Connection, name: str) -> tuple:
-    row = db.execute("SELECT * FROM images WHERE name = ?", (name,)).fetchone()
-    if row is None:
-        raise KeyError(f"{name} is not in the SIFT cache")
-    return row
+def _image_row(db: sqlite3.Connection, name: str) -> tuple | None:
+    return db.execute("SELECT * FROM images WHERE name = ?", (name,)).fetchone()
 
 
 def _insert(table: str, row: tuple) -> str:
