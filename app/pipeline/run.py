@@ -179,7 +179,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
 
     def calibrate_stage(window: CalibrationWindow, kind: str) -> StageSfm:
         # Each candidate window gets correspondences of its own frames only, when it is tried:
-        # the first candidate usually succeeds, and the others' features would be wasted.
+        # the first candidate usually succeeds, and the others' features would be wasted. Frames
+        # an earlier candidate extracted come from ``shared_sift``.
         step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
         first, last = window.frame_idx[0], window.frame_idx[-1]
         return StageSfm("calibrate", workdir / f"sfm_{kind}_{first}_{last}", journey,
