@@ -34,7 +34,8 @@ def cached_names(cache: Path) -> set[str]:
 def extract_into(cache: Path, names: list[str],
                  extract: Callable[[Path, list[str]], None]) -> list[str]:
     """Extract the ``names`` not in ``cache`` yet with ``extract(database, names)``; those names."""
-    missing = [n for n in names if n not in cached_names(cache)]
+    cached = cached_names(cache)
+    missing = [n for n in names if n not in cached]
     if missing:
         extract(cache, missing)
     return missing
@@ -56,13 +57,10 @@ def write_database(cache: Path, database: Path, names: list[str]) -> None:
         dst.execute(_insert("rigs", rig), (1, 1, *rig[2:]))
         for image_id, old in enumerate(rows, start=1):
             dst.execute(_insert("images", old), (image_id, old[1], 1, *old[3:]))
-            (frame_id,) = src.execute(
-                "SELECT frame_id FROM frame_data WHERE data_id = ? AND sensor_type = ?",
-                (old[0], CAMERA_SENSOR)).fetchone()
-            frame = src.execute("SELECT * FROM frames WHERE frame_id = ?", (frame_id,)).fetchone()
+            data = src.execute("SELECT * FROM frame_data WHERE data_id = ? AND sensor_type = ?",
+                               (old[0], CAMERA_SENSOR)).fetchone()
+            frame = src.execute("SELECT * FROM frames WHERE frame_id = ?", (data[0],)).fetchone()
             dst.execute(_insert("frames", frame), (image_id, 1, *frame[2:]))
-            data = src.execute("SELECT * FROM frame_data WHERE frame_id = ?",
-                               (frame_id,)).fetchone()
             dst.execute(_insert("frame_data", data), (image_id, image_id, 1, *data[3:]))
             for table in ("keypoints", "descriptors"):
                 row = src.execute(f"SELECT * FROM {table} WHERE image_id = ?", (old[0],)).fetchone()

@@ -97,7 +97,7 @@ class StageSfm:
             mapping=_mapping(cfg), process=_process(cfg),
             verbose=self.verbose, prior_enu=self.priors,
             prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported,
-            feature_cache=self.feature_cache if extract else None)
+            feature_cache=self.feature_cache)
         return sfm.run_sfm(job, on_mapped=on_mapped)
 
     def refine_jointly(self, parts: list[sfm.WindowResult]) -> sfm.WindowResult:
