@@ -84,16 +84,17 @@ def _run_in_child(task: RunTask) -> RunOutput:
     read_s = time.perf_counter() - t0
     progress = _progress(task.label)
     config = PipelineConfig(**task.config)
-    result, error, failure_report = None, None, ()
+    result, error, failure_report, failure = None, None, (), None
     try:
         if task.naive:
             result = naive_journey(journey, config, task.workdir / "naive", progress=progress)
         else:
             result = _process(task, journey, config, progress)
     except PipelineError as exc:
-        error, failure_report = str(exc), tuple(exc.report)
+        error, failure_report, failure = str(exc), tuple(exc.report), exc
     wall_s = time.perf_counter() - t0
-    timings = {"read": round(read_s, 3), **(result.timings_s if result else {})}
+    timings = {"read": round(read_s, 3),
+               **(result.timings_s if result else failure.timings_s if failure else {})}
     return RunOutput(task.label, result, error, len(journey.frames), wall_s, timings,
                      peak_rss_mb(), cpu_seconds(), detections_of(journey), failure_report)
 

@@ -51,7 +51,12 @@ class _Clock:
     def stage(self, name: str, message: str = ""):
         self.progress(name, self.done, message)
         t0 = time.perf_counter()
-        yield
+        try:
+            yield
+        except PipelineError as exc:
+            self.timings_s[name] = round(time.perf_counter() - t0, 3)
+            exc.timings_s = dict(self.timings_s)
+            raise
         self.finished(name, time.perf_counter() - t0, message)
 
     def finished(self, name: str, seconds: float, message: str = "") -> None:

@@ -268,6 +268,10 @@ class PipelineError(Exception):
         # The reports of the stages that ran before the failure, the failing one's last
         # (``process_journey`` fills this in): why every candidate was refused, and so on.
         self.report: list[StageReport] = []
+        # Seconds per stage that ran, the failing one's included (its clock fills this in): a
+        # calibration that refused every candidate took the longest of all, and a median over
+        # the journeys that succeeded hides it.
+        self.timings_s: dict[str, float] = {}
 
 
 class BundleError(PipelineError):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,9 +13,10 @@ from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.facing import angle_between_deg
 from app.pipeline.geometry.geodesy import frame_at
+from app.pipeline import run
 from app.pipeline.run import process_journey
-from app.pipeline.types import (CameraModel, Journey, JourneyResult, PipelineError,
-                                StageReport)
+from app.pipeline.types import (CameraModel, Journey, JourneyResult, PipelineError, StageReport,
+                                no_progress)
 from tests.utils.journeys import synthetic_journey
 
 pytestmark = pytest.mark.slow
@@ -149,3 +151,18 @@ def test_a_long_journey_with_drifting_gps_does_not_drift_away_from_it(tmp_path_f
     assert pts[:, 0].max() - pts[:, 0].min() > 150.0, pts  # signs spread along the journey
     assert np.median(pts[:, 1]) < 0.6 and pts[:, 1].max() < 1.2, errors
     assert slope_per_100m < 0.25, (slope_per_100m, pts)
+
+
+def test_a_stage_that_fails_still_reports_how_long_it_took():
+    # A calibration that refuses every candidate is the slowest of all; the bench's median of
+    # the calibrate stage must see it.
+    clock = run._Clock(no_progress, {"turns": 0.1, "calibrate": 0.9})
+    with clock.stage("turns"):
+        pass
+    with pytest.raises(PipelineError) as err:
+        with clock.stage("calibrate"):
+            time.sleep(0.05)
+            raise PipelineError("calibrate", "self-calibration failed on every turn window")
+    assert set(err.value.timings_s) == {"turns", "calibrate"}
+    assert err.value.timings_s["calibrate"] >= 0.05
+    assert clock.timings_s == err.value.timings_s
