@@ -115,6 +115,8 @@ class PipelineConfig(BaseModel):
     # bench/results/2026-11-29-accept-px.md): one more journey within every bar (c0866, fx -2.59
     # -> +0.19 %), fx p90 0.87 -> 0.62 %, but the calibrate median of the journeys it moves +65 %
     # (+93 % at 0.30): each later window costs 20-40 s. Not taken; the check halves were not run.
+    # 0.32 again on fresh seeds, with shared SIFT (2026-11-29-accept-px2.md): it moved two tuning
+    # journeys already within every bar and brought none inside; not taken.
     calib_accept_reprojection_px: float = Field(
         0.35, description="a candidate this good (after stage 2) ends the search early")
     # A wrong minimum registers a few frames and stops, or registers all of them: the error and
