@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from app.commands.process_report import report as json_report
+from app.pipeline import run
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.facing import angle_between_deg
 from app.pipeline.geometry.geodesy import frame_at
-from app.pipeline import run
 from app.pipeline.run import process_journey
 from app.pipeline.types import (CameraModel, Journey, JourneyResult, PipelineError, StageReport,
                                 no_progress)
