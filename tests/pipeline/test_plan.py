@@ -3,15 +3,17 @@ COLMAP, the turn journey's frames, GPS and detections as read."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.run import Reconstruction, georeference
-from app.pipeline.steps import plan
+from app.pipeline.steps import plan, turns
 from app.pipeline.types import Calibration, CameraModel, Detection
 
 
@@ -98,3 +100,25 @@ def test_the_gps_measures_a_window_only_where_its_chords_lie_on_the_track():
     short, = plan.gps_rotation([CalibrationWindow(np.arange(18), vertex=9)], xyz[:18], 0.3,
                                PipelineConfig())
     assert short.gps_frame_idx is None and np.isnan(short.gps_rotation_deg)
+
+
+def test_the_turns_summary_gives_the_turning_that_opposite_turns_cancel_in_the_heading():
+    """A left then a right turn 20 m apart merge into one window whose heading change is ~0:
+    the stage's one-line summary must still say the car turned (not "+0 deg")."""
+    quarter = np.linspace(0.0, np.pi / 2, 20)
+    xy_m = np.concatenate([
+        np.stack([np.linspace(-60.0, 0.0, 61), np.zeros(61)], 1),
+        np.stack([10.0 * np.sin(quarter), 10.0 - 10.0 * np.cos(quarter)], 1),  # left
+        np.stack([np.full(11, 10.0), np.linspace(10.0, 20.0, 11)], 1),
+        np.stack([20.0 - 10.0 * np.cos(quarter), 20.0 + 10.0 * np.sin(quarter)], 1),  # right
+        np.stack([np.linspace(20.0, 80.0, 61), np.full(61, 30.0)], 1)])
+    config = PipelineConfig()
+    found = turns.find_turns(xy_m, tolerance_m=config.rdp_tolerance_m,
+                             min_angle_deg=config.turn_min_angle_deg)
+    assert len(found) == 1 and abs(found[0].angle_deg) < 10.0
+    empty = np.zeros(0, dtype=int)
+    the_plan = plan.JourneyPlan(turns=found, calib_windows=[], tracks=[], ego_windows=[],
+                                off_grid=empty, ego_frames=empty)
+    summary = plan.report(the_plan, config).summary
+    rotation = re.search(r"(\d+) deg of turning", summary)
+    assert rotation and abs(int(rotation.group(1)) - 180) <= 20, summary
