@@ -61,7 +61,9 @@ class Settings(BaseSettings):
         100.0, description="a journey re-fuses the box of its signs and track grown by this")
     calibration_flag_rel: float = Field(
         0.03, description="flag a self-calibration whose fx/fy (relative) or cx/cy (relative to "
-                          "the image size) differ more than this from the camera's stored one")
+                          "the image size) differ more than this from the camera's stored one; "
+                          "stored calibrations this close count as one camera (the stored one "
+                          "is the mean of the largest such group)")
 
     # Map reads (see docs/service.md, "Map at scale").
     map_read_concurrency: int = Field(

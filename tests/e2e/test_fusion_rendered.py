@@ -17,7 +17,7 @@ What is made cheap, and why it is still the real thing:
 * No self-calibration (~3 min of a journey here). Each database is seeded with a stored calibration
   of the journeys' camera_id -- the TRUE camera, as if an earlier journey had calibrated it -- and
   the pipeline runs with ``reuse_known_calibration``: exactly the path every later journey of a
-  calibrated camera takes in production (``jobs.run_journey`` -> ``latest_calibration``).
+  calibrated camera takes in production (``jobs.run_journey`` -> ``camera_calibration``).
   Self-calibration through the service is covered by tests/e2e/test_default_stack.py
   (test_real_stack.py seeds the calibration too).
 * 30 frames per journey (one ego-motion window of 15 images). (Cheaper went wrong when ego-motion

@@ -6,6 +6,8 @@ from __future__ import annotations
 import secrets
 from datetime import timedelta
 
+import numpy as np
+import pytest
 from sqlalchemy import func, select, update
 
 from app.service import storage
@@ -107,7 +109,7 @@ def test_a_journey_whose_worker_keeps_dying_fails_after_max_attempts(stack):
         "failed", "gave up after 2 attempts: the worker died or stalled each time")
 
 
-def test_latest_calibration_of_the_camera_excluding_the_journey_itself(stack):
+def test_the_stored_calibration_of_the_camera_excludes_the_journey_itself(stack):
     key = stack.key("fleet")
     camera_id = f"cam-{key[:8]}"
     files = [{**bf.valid_files(n_frames=n), "manifest.json": bf.manifest_bytes(
@@ -118,12 +120,37 @@ def test_latest_calibration_of_the_camera_excluding_the_journey_itself(stack):
     finish(stack, ids[1], made_result(SIGNS, fx=70.0), files[1])
     finish(stack, ids[2], made_result(SIGNS, source="supplied", fx=70.0), files[2])
     with session_scope(stack.url) as session:
-        assert state.latest_calibration(session, camera_id, ids[2]).fx == 70.0
-        assert state.latest_calibration(session, camera_id, ids[1]).fx == 60.0
-        assert state.latest_calibration(session, "other-camera", ids[2]) is None
+        # Two that disagree: no majority, the newest.
+        assert _stored(session, camera_id, ids[2]).fx == 70.0
+        assert _stored(session, camera_id, ids[1]).fx == 60.0
+        assert _stored(session, "other-camera", ids[2]) is None
         n_records = session.scalar(select(func.count()).select_from(CalibrationRow)
                                    .where(CalibrationRow.camera_id == camera_id))
     assert n_records == 2  # "supplied" calibrations are not stored again
+
+
+def _stored(session, camera_id: str, journey_id: str):
+    return state.camera_calibration(session, camera_id, journey_id, agree_rel=0.03)
+
+
+def test_a_wrong_calibration_does_not_outvote_the_cameras_others(stack):
+    """Three journeys of a camera calibrate within 1 % of each other, then a fourth 14 % off (as
+    a wrong accepted calibration is): later journeys get the three's mean, not the newest."""
+    key = stack.key("fleet")
+    camera_id = f"cam-{key[:8]}"
+    fxs = (50.0, 50.5, 49.8, 57.0)
+    files = [{**bf.valid_files(n_frames=5 + k), "manifest.json": bf.manifest_bytes(
+        camera_id=camera_id)} for k in range(len(fxs) + 1)]
+    with stack.client() as client:
+        ids = [upload(client, key, bf_zip(f)) for f in files]
+    for journey_id, fx, f in zip(ids, fxs, files):
+        finish(stack, journey_id, made_result(SIGNS, fx=fx), f)
+    with session_scope(stack.url) as session:
+        camera = _stored(session, camera_id, ids[-1])
+        assert camera.fx == pytest.approx(np.mean(fxs[:3]))
+        assert camera.fy == pytest.approx(np.mean(fxs[:3]) + 1.0)
+        # Re-running one of the three leaves two that agree against the wrong one.
+        assert _stored(session, camera_id, ids[0]).fx == pytest.approx(np.mean(fxs[1:3]))
 
 
 def _new_camera_files() -> dict[str, bytes]:

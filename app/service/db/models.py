@@ -125,7 +125,8 @@ class JourneySignRow(Base):
 
 
 class CalibrationRow(Base):
-    """Every successful self-calibration; the camera's latest one is reused by later journeys."""
+    """Every successful self-calibration; later journeys of the camera reuse what most of its
+    calibrations agree on (``jobs.state.camera_calibration``)."""
 
     __tablename__ = "calibrations"
 

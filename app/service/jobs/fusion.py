@@ -86,9 +86,7 @@ def calibration_flag(stored: CameraModel | None, result: JourneyResult, max_rel:
     if stored is None or calib.source != "self":
         return None
     cam = calib.camera
-    deviation = {"fx": abs(cam.fx - stored.fx) / stored.fx, "fy": abs(cam.fy - stored.fy) / stored.fy,
-                 "cx": abs(cam.cx - stored.cx) / stored.width,
-                 "cy": abs(cam.cy - stored.cy) / stored.height}
+    deviation = state.calibration_deviation(cam, stored)
     over = sorted(k for k, v in deviation.items() if v > max_rel)
     if not over:
         return None
