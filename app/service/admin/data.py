@@ -9,6 +9,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow
+from app.service.jobs import state
 
 PAGE_SIZE = 50
 LIST_COLUMNS = (JourneyRow.id, JourneyRow.camera_id, JourneyRow.status, JourneyRow.stage, JourneyRow.progress,
@@ -71,6 +72,24 @@ def calibrations(session: Session, camera_id: str | None = None) -> list[Calibra
     if camera_id is not None:
         query = query.where(CalibrationRow.camera_id == camera_id)
     return list(session.scalars(query))
+
+
+@dataclass(frozen=True)
+class CameraConsensus:
+    """What the camera's later journeys get as its stored calibration (``state.consensus`` of
+    its ``considered`` newest self-calibrations, row ids) and which of those agree on it."""
+
+    camera: Any  # CameraModel | None
+    members: frozenset[int]
+    considered: frozenset[int]
+
+
+def camera_consensus(records: list[CalibrationRow], agree_rel: float) -> CameraConsensus:
+    """``records``: one camera's self-calibrations, oldest first (as ``calibrations`` gives)."""
+    newest = records[::-1][: state.CONSENSUS_NEWEST]
+    camera, members = state.consensus([state.stored_camera(r) for r in newest], agree_rel)
+    return CameraConsensus(camera, frozenset(newest[i].id for i in members),
+                           frozenset(r.id for r in newest))
 
 
 def fx_chart(records: list[CalibrationRow], width: int = 240, height: int = 60

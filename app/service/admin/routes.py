@@ -179,10 +179,14 @@ for _path, _endpoint in (("/api/signs", map_routes.get_map_signs),
 
 
 @router.get("/cameras")
-def cameras(request: Request, _signed_in: SignedIn, session: SessionDep) -> HTMLResponse:
+def cameras(request: Request, _signed_in: SignedIn, settings: SettingsDep,
+            session: SessionDep) -> HTMLResponse:
     records = data.calibrations(session)
     by_camera: dict[str, list] = {}
     for record in records:
         by_camera.setdefault(record.camera_id, []).append(record)
     charts = {camera: data.fx_chart(rows) for camera, rows in by_camera.items()}
-    return _page(request, "cameras.html", by_camera=by_camera, charts=charts)
+    consensus = {camera: data.camera_consensus(rows, settings.calibration_flag_rel)
+                 for camera, rows in by_camera.items()}
+    return _page(request, "cameras.html", by_camera=by_camera, charts=charts,
+                 consensus=consensus, agree_pct=100 * settings.calibration_flag_rel)

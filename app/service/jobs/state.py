@@ -100,35 +100,50 @@ def fail(session: Session, journey_id: str, attempt: int, stage: str | None, rea
                            ).rowcount == 1
 
 
+# How many of a camera's newest self-calibrations vote on its stored one.
+CONSENSUS_NEWEST = 20
+
+
 def camera_calibration(session: Session, camera_id: str, exclude_journey_id: str, *,
-                       agree_rel: float, newest: int = 20) -> CameraModel | None:
+                       agree_rel: float) -> CameraModel | None:
     """The camera's stored calibration, not counting this journey's own (so that a re-run of a
-    journey calibrates itself again, exactly as the first run did): the mean of the largest group
-    of its ``newest`` stored self-calibrations that agree with one of them within ``agree_rel``
-    (``calibration_agreement``); on a tie, the group of the newest.
+    journey calibrates itself again, exactly as the first run did): the ``consensus`` of its
+    ``CONSENSUS_NEWEST`` newest stored self-calibrations."""
+    rows = session.scalars(
+        select(CalibrationRow)
+        .where(CalibrationRow.camera_id == camera_id,
+               CalibrationRow.journey_id != exclude_journey_id)
+        .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc())
+        .limit(CONSENSUS_NEWEST)
+    ).all()
+    return consensus([stored_camera(r) for r in rows], agree_rel)[0]
+
+
+def stored_camera(row: CalibrationRow) -> CameraModel:
+    return CameraModel(width=row.width, height=row.height, fx=row.fx, fy=row.fy, cx=row.cx,
+                       cy=row.cy, k1=row.k1, k2=row.k2)
+
+
+def consensus(cameras: list[CameraModel], agree_rel: float
+              ) -> tuple[CameraModel | None, list[int]]:
+    """The mean of the largest group of ``cameras`` (newest first) that agree with one of them
+    within ``agree_rel`` (``calibration_agreement``; on a tie, the group of the newest), and the
+    indices of its members; (None, []) for none.
 
     A single self-calibration can be accepted wrong (13 % off in fx on a corpus check journey,
     bench/results/2026-11-29-check929.md). Reused as "the camera", it would misplace every later
     journey that cannot calibrate itself and flag every right one as disagreeing; a majority of
     the camera's journeys outvotes it. The mean, not a median per parameter: the distortion
     1 + k1 r^2 + k2 r^4 is linear in (k1, k2), so the mean camera has the mean curve."""
-    rows = session.scalars(
-        select(CalibrationRow)
-        .where(CalibrationRow.camera_id == camera_id,
-               CalibrationRow.journey_id != exclude_journey_id)
-        .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc())
-        .limit(newest)
-    ).all()
-    cameras = [CameraModel(width=r.width, height=r.height, fx=r.fx, fy=r.fy, cx=r.cx, cy=r.cy,
-                           k1=r.k1, k2=r.k2) for r in rows]
-    groups = [[c for c in cameras if calibration_agreement(c, centre) <= agree_rel]
+    groups = [[i for i, c in enumerate(cameras) if calibration_agreement(c, centre) <= agree_rel]
               for centre in cameras]
-    best = max(groups, key=len, default=[])  # max keeps the first (newest) of equal groups
-    if not best:
-        return None
+    members = max(groups, key=len, default=[])  # max keeps the first (newest) of equal groups
+    if not members:
+        return None, []
+    best = [cameras[i] for i in members]
     mean = {k: float(np.mean([getattr(c, k) for c in best]))
             for k in ("fx", "fy", "cx", "cy", "k1", "k2")}
-    return CameraModel(width=best[0].width, height=best[0].height, **mean)
+    return CameraModel(width=best[0].width, height=best[0].height, **mean), members
 
 
 def calibration_deviation(camera: CameraModel, stored: CameraModel) -> dict[str, float]:

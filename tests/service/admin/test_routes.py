@@ -236,3 +236,15 @@ def test_delete_removes_the_journey_its_signs_and_calibration(client, stack):
         assert session.scalar(select(func.count()).select_from(JourneySignRow)
                               .where(JourneySignRow.journey_id == kept)) == 2
     assert client.post(f"/admin/journeys/{doomed}/delete").status_code == 404
+
+
+def test_cameras_page_shows_the_stored_calibration_and_the_outvoted_one(client, stack):
+    for fx in (50.0, 50.5, 49.8, 57.0):  # three that agree, then one 14 % off
+        add_journey(stack.settings, "done", fx=fx)
+    sign_in(client)
+    section = client.get("/admin/cameras").text.split("<h2>test-cam</h2>")[1]
+    assert "fx 50.1," in section and "the mean of 3 of the newest" in section
+    assert "4 self-calibrations" in section and "1 outvoted" in section
+    outvoted = section.split('class="outvoted"')
+    assert len(outvoted) == 2 and "57.0" in outvoted[1].split("</tr>")[0]
+    assert section.count('fill="#b71c1c"') == 1  # its point on the fx chart, in red
