@@ -64,6 +64,10 @@ class Settings(BaseSettings):
                           "the image size) differ more than this from the camera's stored one; "
                           "stored calibrations this close count as one camera (the stored one "
                           "is the mean of the largest such group)")
+    # Seven: one or two wrong calibrations among them are outvoted, and a camera that really
+    # changed (another lens under the same id) is the stored one again from its 3rd-4th journey.
+    calibration_consensus_newest: int = Field(
+        7, ge=1, description="the camera's newest self-calibrations that vote on its stored one")
 
     # Map reads (see docs/service.md, "Map at scale").
     map_read_concurrency: int = Field(

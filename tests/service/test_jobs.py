@@ -130,7 +130,8 @@ def test_the_stored_calibration_of_the_camera_excludes_the_journey_itself(stack)
 
 
 def _stored(session, camera_id: str, journey_id: str):
-    return state.camera_calibration(session, camera_id, journey_id, agree_rel=0.03)
+    return state.camera_calibration(session, camera_id, journey_id, agree_rel=0.03,
+                                    newest=7)
 
 
 def test_a_wrong_calibration_does_not_outvote_the_cameras_others(stack):
@@ -151,6 +152,25 @@ def test_a_wrong_calibration_does_not_outvote_the_cameras_others(stack):
         assert camera.fy == pytest.approx(np.mean(fxs[:3]) + 1.0)
         # Re-running one of the three leaves two that agree against the wrong one.
         assert _stored(session, camera_id, ids[0]).fx == pytest.approx(np.mean(fxs[1:3]))
+
+
+def test_a_camera_that_really_changed_takes_over_from_its_third_journey(stack):
+    """Three journeys of a camera at fx 50, then journeys of another lens (fx 60) under the same
+    id: with two of those the old group is larger; from the third the new one wins the tie as the
+    newer, and with more the old calibrations fall out of the newest seven."""
+    key = stack.key("fleet")
+    camera_id = f"cam-{key[:8]}"
+    fxs = (50.0, 50.2, 49.9, 60.0, 60.3, 59.8, 60.1)
+    files = [{**bf.valid_files(n_frames=5 + k), "manifest.json": bf.manifest_bytes(
+        camera_id=camera_id)} for k in range(len(fxs) + 1)]
+    with stack.client() as client:
+        ids = [upload(client, key, bf_zip(f)) for f in files]
+    seen = []
+    for journey_id, fx, f in zip(ids, fxs, files):
+        finish(stack, journey_id, made_result(SIGNS, fx=fx), f)
+        with session_scope(stack.url) as session:
+            seen.append(round(_stored(session, camera_id, ids[-1]).fx))
+    assert seen == [50, 50, 50, 50, 50, 60, 60]
 
 
 def _new_camera_files() -> dict[str, bytes]:

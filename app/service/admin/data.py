@@ -84,12 +84,14 @@ class CameraConsensus:
     considered: frozenset[int]
 
 
-def camera_consensus(records: list[CalibrationRow], agree_rel: float) -> CameraConsensus:
-    """``records``: one camera's self-calibrations, oldest first (as ``calibrations`` gives)."""
-    newest = records[::-1][: state.CONSENSUS_NEWEST]
-    camera, members = state.consensus([state.stored_camera(r) for r in newest], agree_rel)
-    return CameraConsensus(camera, frozenset(newest[i].id for i in members),
-                           frozenset(r.id for r in newest))
+def camera_consensus(records: list[CalibrationRow], agree_rel: float, newest: int
+                     ) -> CameraConsensus:
+    """``records``: one camera's self-calibrations, oldest first (as ``calibrations`` gives);
+    the ``newest`` of them vote."""
+    voters = records[::-1][:newest]
+    camera, members = state.consensus([state.stored_camera(r) for r in voters], agree_rel)
+    return CameraConsensus(camera, frozenset(voters[i].id for i in members),
+                           frozenset(r.id for r in voters))
 
 
 def fx_chart(records: list[CalibrationRow], width: int = 240, height: int = 60

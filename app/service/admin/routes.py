@@ -186,7 +186,8 @@ def cameras(request: Request, _signed_in: SignedIn, settings: SettingsDep,
     for record in records:
         by_camera.setdefault(record.camera_id, []).append(record)
     charts = {camera: data.fx_chart(rows) for camera, rows in by_camera.items()}
-    consensus = {camera: data.camera_consensus(rows, settings.calibration_flag_rel)
+    consensus = {camera: data.camera_consensus(rows, settings.calibration_flag_rel,
+                                               settings.calibration_consensus_newest)
                  for camera, rows in by_camera.items()}
     return _page(request, "cameras.html", by_camera=by_camera, charts=charts,
                  consensus=consensus, agree_pct=100 * settings.calibration_flag_rel)

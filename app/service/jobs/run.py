@@ -53,9 +53,9 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         attempt = state.claim(session, journey_id, settings.stale_after_s, settings.max_attempts)
         row = session.get(JourneyRow, journey_id) if attempt is not None else None
         sha256, camera_id = (row.bundle_sha256, row.camera_id) if row else (None, None)
-        known_camera = (state.camera_calibration(session, camera_id, journey_id,
-                                                 agree_rel=settings.calibration_flag_rel)
-                        if row else None)
+        known_camera = (state.camera_calibration(
+            session, camera_id, journey_id, agree_rel=settings.calibration_flag_rel,
+            newest=settings.calibration_consensus_newest) if row else None)
     if attempt is None:
         log.info("journey %s: not claimed (finished, unknown or owned by a live run)", journey_id)
         return

@@ -100,21 +100,17 @@ def fail(session: Session, journey_id: str, attempt: int, stage: str | None, rea
                            ).rowcount == 1
 
 
-# How many of a camera's newest self-calibrations vote on its stored one.
-CONSENSUS_NEWEST = 20
-
-
 def camera_calibration(session: Session, camera_id: str, exclude_journey_id: str, *,
-                       agree_rel: float) -> CameraModel | None:
+                       agree_rel: float, newest: int) -> CameraModel | None:
     """The camera's stored calibration, not counting this journey's own (so that a re-run of a
     journey calibrates itself again, exactly as the first run did): the ``consensus`` of its
-    ``CONSENSUS_NEWEST`` newest stored self-calibrations."""
+    ``newest`` newest stored self-calibrations (``Settings.calibration_consensus_newest``)."""
     rows = session.scalars(
         select(CalibrationRow)
         .where(CalibrationRow.camera_id == camera_id,
                CalibrationRow.journey_id != exclude_journey_id)
         .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc())
-        .limit(CONSENSUS_NEWEST)
+        .limit(newest)
     ).all()
     return consensus([stored_camera(r) for r in rows], agree_rel)[0]
 
