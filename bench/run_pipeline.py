@@ -6,15 +6,13 @@ A fresh spawned process per run isolates a COLMAP abort and makes its peak memor
 from __future__ import annotations
 
 import concurrent.futures as cf
-import multiprocessing
-import os
 import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from app.pipeline.bundle import read_bundle
-from app.pipeline.colmap.lifeline import die_with_parent
+from app.pipeline.colmap.sfm import colmap_pool
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, Journey, JourneyResult, PipelineError, StageReport
 
@@ -125,12 +123,11 @@ def detections_of(journey: Journey) -> tuple[tuple[str, str, float, float, float
 
 def run_isolated(task: RunTask) -> RunOutput:
     """Run ``task`` in a fresh spawned process; a crash of that process becomes ``error``.
-    The process dies with this one: a bench stopped with a signal left its naive COLMAP child
-    running for minutes, and the next run's timings with it (2026-11-29)."""
-    ctx = multiprocessing.get_context("spawn")
+    The pipeline's own ``colmap_pool``, whose process dies with this one: a bench stopped with a
+    signal left its naive COLMAP child running for minutes, and the next run's timings with it
+    (2026-11-29)."""
     t0 = time.perf_counter()
-    with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=die_with_parent,
-                                initargs=(os.getpid(),)) as pool:
+    with colmap_pool(1) as pool:
         try:
             return pool.submit(_run_in_child, task).result()
         except cf.process.BrokenProcessPool:

@@ -136,10 +136,10 @@ def consensus(cameras: list[CameraModel], agree_rel: float
     members = max(groups, key=len, default=[])  # max keeps the first (newest) of equal groups
     if not members:
         return None, []
-    best = [cameras[i] for i in members]
-    mean = {k: float(np.mean([getattr(c, k) for c in best]))
-            for k in ("fx", "fy", "cx", "cy", "k1", "k2")}
-    return CameraModel(width=best[0].width, height=best[0].height, **mean), members
+    params = [cameras[i].params() for i in members]
+    mean = {k: float(np.mean([p[k] for p in params])) for k in params[0]}
+    first = cameras[members[0]]
+    return CameraModel.from_params(first.width, first.height, mean), members
 
 
 def calibration_deviation(camera: CameraModel, stored: CameraModel) -> dict[str, float]:
