@@ -129,6 +129,11 @@ class PipelineConfig(BaseModel):
     # 2026-11-27-corpus-reg-c-*).
     calib_min_registered_ratio: float = Field(
         0.6, description="a candidate window must register this share of its frames")
+    # A mapper that leaves part of a window out struggled from its start too (bench/results/
+    # 2026-11-29-retry-partial.md).
+    calib_retry_below_ratio: float = Field(
+        0.6, description="a candidate window registering less than this share of its frames is "
+        "mapped again from calib_retry_focal_factors; the mapping registering more is kept")
     # Half the corpus bar (fx within 1 %), chosen before measuring. COLMAP's covariance is
     # optimistic (accepted calibrations' fx errors were a median 2.0 / 2.5 of it, tuning / check),
     # so this refuses only windows that pin fx down poorly. Corpus, calibration only (2026-11-26):
