@@ -67,16 +67,20 @@ def parse_knob(text: str) -> tuple[str, object]:
 def run_corpus_command(args) -> int:
     from bench.corpus import run_corpus
 
-    if args.true_camera_focal_scale != 1.0 and not args.true_camera:
+    if args.true_camera and args.stored_camera:
+        raise SystemExit("signmap bench corpus: --true-camera skips calibrating, --stored-camera "
+                         "calibrates beside a stored camera: give one")
+    if args.true_camera_focal_scale != 1.0 and not (args.true_camera or args.stored_camera):
         raise SystemExit("signmap bench corpus: --true-camera-focal-scale scales the true camera: "
-                         "give --true-camera too")
+                         "give --true-camera or --stored-camera too")
     try:
         paths = run_corpus(args.corpus, args.out, half=args.half, limit=args.limit,
                            names=[n for n in (args.names or "").split(",") if n] or None,
                            calibrate_only=args.calibrate_only, true_camera=args.true_camera,
                            config_overrides=dict(args.set or []), tag=args.tag,
                            resume=args.resume, keep_dir=args.keep_reconstructions,
-                           replay_dir=args.replay, focal_scale=args.true_camera_focal_scale)
+                           replay_dir=args.replay, focal_scale=args.true_camera_focal_scale,
+                           stored_camera=args.stored_camera)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -279,8 +283,12 @@ def _add_corpus_parser(bench_sub) -> None:
     c.add_argument("--true-camera", action="store_true",
                    help="give the pipeline each journey's true camera instead of self-calibrating "
                         "(measures sign placement on every journey, those without turns too)")
+    c.add_argument("--stored-camera", action="store_true",
+                   help="hand the true camera over as the camera's stored calibration, as the "
+                        "service does for a known camera; the journey still calibrates itself")
     c.add_argument("--true-camera-focal-scale", type=float, default=1.0, metavar="F",
-                   help="with --true-camera: hand over fx and fy times F (0.97: a calibration "
+                   help="with --true-camera or --stored-camera: hand over fx and fy times F "
+                        "(0.97: a calibration "
                         "3 %% short), to see what a focal error does to the later stages")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")

@@ -36,7 +36,7 @@ CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
 RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of",
-                "true_camera_focal_scale")
+                "true_camera_focal_scale", "stored_camera")
 
 
 class CorpusPaths(NamedTuple):
@@ -213,23 +213,26 @@ def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | 
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
                 calibrate_only: bool, true_camera: bool = False, *,
                 keep_dir: Path | None = None, replay_dir: Path | None = None,
-                focal_scale: float = 1.0) -> dict:
+                focal_scale: float = 1.0, stored_camera: bool = False) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
     that sign placement is measured on every journey, those without turns included.
     ``keep_dir``: keep its reconstruction there; ``replay_dir``: georeference the one kept there
     instead of running the pipeline (``bench.replay``). ``focal_scale``: the true camera's fx
     and fy are handed over times this (what a calibration that many per cent off does to the
-    later stages)."""
+    later stages). ``stored_camera``: the true camera (times ``focal_scale``) is handed over as
+    the camera's stored calibration, as the service does, and the journey still calibrates itself
+    (``calibrate.stored_or_own`` decides)."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
     digest = bundle_digest(jdir / "bundle.zip")
     known = None
-    if true_camera:
+    if true_camera or stored_camera:
         cam = truth["camera"]
         known = CameraModel.from_params(cam["width"], cam["height"],
                                         {**cam, "fx": cam["fx"] * focal_scale,
                                          "fy": cam["fy"] * focal_scale})
+    if true_camera:
         config = config.model_copy(update={"reuse_known_calibration": True})
     if replay_dir is not None:
         return journey_record(entry, _replayed(entry["name"], replay_dir, config), truth,
@@ -303,7 +306,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                calibrate_only: bool = False, true_camera: bool = False,
                config_overrides: dict[str, Any] | None = None,
                tag: str = "", resume: bool = False, keep_dir: Path | None = None,
-               replay_dir: Path | None = None, focal_scale: float = 1.0) -> CorpusPaths:
+               replay_dir: Path | None = None, focal_scale: float = 1.0,
+               stored_camera: bool = False) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
     .jsonl (records), .md, .json and .png into ``out_dir``. ``keep_dir`` / ``replay_dir``: keep
     each journey's reconstruction there, or only georeference those kept there (``bench.replay``);
@@ -325,6 +329,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
             "true_camera": true_camera, "true_camera_focal_scale": focal_scale,
+            "stored_camera": stored_camera,
             "config_overrides": overrides, "tag": tag,
             "replay_of": None if replay_dir is None else str(Path(replay_dir).resolve())}
     meta.pop("quick", None)
@@ -347,7 +352,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     for i, entry in enumerate(todo, start=1):
         log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
         record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera,
-                             keep_dir=keep_dir, replay_dir=replay_dir, focal_scale=focal_scale)
+                             keep_dir=keep_dir, replay_dir=replay_dir, focal_scale=focal_scale,
+                             stored_camera=stored_camera)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"

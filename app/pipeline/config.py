@@ -139,6 +139,16 @@ class PipelineConfig(BaseModel):
     # so this refuses only windows that pin fx down poorly. Corpus, calibration only (2026-11-26):
     # tuning half c0034 (fx -1.7 %) refused, nothing else changed; check half c0035 (+4.3 %,
     # accepted before) refused, c0053 +0.49 -> +0.05 %.
+    # A wrong acceptance cannot be told from a right one by its own evidence
+    # (bench/results/2026-11-29-lone-gates.md), but a stored camera can be put to its window.
+    # Measured at 0.03 (the service's calibration_flag_rel) and left off: on the tuning half it
+    # took the true camera over one of the two acceptances more than 1 % off (c0838), not the
+    # other (c0866), the rule written first asked for both
+    # (bench/results/2026-11-29-stored-camera-check.md; signmap bench corpus --stored-camera).
+    calib_stored_focal_margin: float = Field(
+        0.0, description="with a stored camera that disagrees with the journey's accepted "
+        "self-calibration, map with the stored one when the accepted window fits it no worse "
+        "than its own camera with fx, fy this fraction off either way (0: never)")
     calib_max_focal_std: float = Field(
         0.005, description="refuse a candidate whose stage-2 covariance leaves fx uncertain by "
         "more than this fraction (0: no such gate)")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
-from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
+from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, held_camera_fit, read_gray
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
@@ -193,11 +193,18 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                         config=config, xyz_gps=xyz_gps, verbose=verbose,
                         feature_cache=shared_sift if config.calib_share_features else None)
 
+    # The accepted window's model is put to the stored camera (calibrate.stored_or_own).
+    check_stored = known_camera is not None and config.calib_stored_focal_margin > 0
+
+    def held_fit(window: WindowResult, cameras: list[CameraModel]) -> list[float]:
+        return held_camera_fit(window, cameras, config=config,
+                               workdir=workdir / "calibrate_held_fit", verbose=verbose)
+
     def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
         n_images = len(window.frame_idx)
         request = WindowRequest(
             image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
-            keep_model=config.calib_joint,
+            keep_model=config.calib_joint or check_stored,
             retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
             retry_below=int(np.ceil(config.calib_retry_below_ratio * n_images)))
         return calibrate_stage(window, "calibrate").run([request], None)[0]
@@ -227,7 +234,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                 background.submit(ego_sfm.correspondences)
             with clock.stage("calibrate", f"{len(the_plan.calib_windows)} candidate windows"):
                 calib = _calibrate(journey, the_plan.calib_windows, config, calibrate_window,
-                                   refine_jointly, on_candidate, known_camera, entry)
+                                   refine_jointly, on_candidate, known_camera, entry,
+                                   held_fit if check_stored else None)
     camera = calib.camera
 
     if not tracks:
@@ -357,7 +365,7 @@ def frame_positions(journey: Journey, origin: geodesy.LocalFrame,
 def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,
                calibrate_window, refine_jointly, on_candidate,
                known_camera: CameraModel | None,
-               entry: _Entry) -> Calibration:
+               entry: _Entry, held_fit: calibrate.HeldFit | None = None) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
     Fills in the calibrate stage's report ``entry``."""
@@ -372,7 +380,8 @@ def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config:
                                          hint=journey.camera_prior, width=journey.image_width,
                                          height=journey.image_height, on_candidate=on_candidate,
                                          trials=entry.details, refine_jointly=refine_jointly,
-                                         frame_names=[f.path.name for f in journey.frames])
+                                         frame_names=[f.path.name for f in journey.frames],
+                                         stored=known_camera, held_fit=held_fit)
     except PipelineError as exc:
         if known_camera is None:
             raise

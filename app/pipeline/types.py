@@ -148,8 +148,9 @@ class Calibration:
     """Outcome of self-calibration (or of reusing a stored calibration).
 
     ``source`` is ``"self"`` when this journey calibrated itself, ``"supplied"`` when an earlier
-    calibration of the same ``camera_id`` was used. (The manifest's camera hint only seeds
-    self-calibration's first focal length.)
+    calibration of the same ``camera_id`` was used: the journey could not calibrate, or its
+    accepted window fitted the stored camera as well (``single_window`` is then its own). (The
+    manifest's camera hint only seeds self-calibration's first focal length.)
     """
 
     camera: CameraModel

@@ -239,8 +239,12 @@ def test_a_focal_scale_without_the_true_camera_is_refused(tmp_path: Path):
     bench_cli.add_parsers(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["bench", "corpus", "--corpus", str(tmp_path),
                               "--true-camera-focal-scale", "0.97"])
-    with pytest.raises(SystemExit, match="give --true-camera too"):
+    with pytest.raises(SystemExit, match="give --true-camera or --stored-camera too"):
         args.func(args)
+    both = parser.parse_args(["bench", "corpus", "--corpus", str(tmp_path), "--true-camera",
+                              "--stored-camera"])
+    with pytest.raises(SystemExit, match="give one"):
+        both.func(both)
 
 
 def test_unknown_knob_is_an_error(tmp_path: Path):

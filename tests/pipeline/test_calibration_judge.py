@@ -1,10 +1,13 @@
 """How self-calibration judges a candidate window (no COLMAP: made-up window results)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from app.pipeline.steps.calibrate import judge_window
+from app.pipeline.steps.calibrate import summary as calibrate_summary
 from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
@@ -437,3 +440,71 @@ def test_the_calibration_summary_carries_stage_2s_own_spread():
     assert "fx ± 0.13 %, cx ± 0.8, cy ± 2.6 px" in summary(cal)
     bare, _ = _search([_window(TRUE, error_px=0.2)])  # no covariance: nothing made up
     assert "±" not in summary(bare)
+
+
+def _search_beside_stored(stored: CameraModel, sse: dict[str, float]):
+    """One sharp window (its own camera TRUE) searched beside the camera's ``stored``
+    calibration; the held fit answers ``sse`` by the name of each camera it is asked about
+    (own+, own-, stored) and records what it was asked."""
+    from dataclasses import replace as replace_result
+
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+
+    window = CalibrationWindow(np.arange(30), 40)
+    accepted = replace_result(_window(TRUE, error_px=0.2), model_dir=Path("kept"))
+    asked: list[list[CameraModel]] = []
+
+    def held_fit(result, cameras):
+        assert result is accepted
+        asked.append(cameras)
+        return [sse["own+"], sse["own-"], sse["stored"]]
+
+    trials: list[str] = []
+    config = PipelineConfig(calib_stored_focal_margin=0.03)  # off by default
+    cal = self_calibrate([window], config, lambda w, start: accepted, width=1242,
+                         height=375, trials=trials, stored=stored, held_fit=held_fit)
+    return cal, asked, trials
+
+
+STALE = TRUE.replace(fx=TRUE.fx * 0.96, fy=TRUE.fy * 0.96)
+
+
+def test_a_stored_camera_the_window_cannot_tell_from_its_own_is_used():
+    cal, asked, trials = _search_beside_stored(STALE, {"own+": 110.0, "own-": 105.0,
+                                                       "stored": 104.0})
+    assert cal.source == "supplied" and cal.camera == STALE and cal.single_window == TRUE
+    own_longer, own_shorter, held = asked[0]
+    assert own_longer.fx == pytest.approx(TRUE.fx * 1.03)
+    assert own_shorter.fy == pytest.approx(TRUE.fy * 0.97) and held == STALE
+    assert "the stored one is used" in trials[-1]
+    assert calibrate_summary(cal).startswith("stored calibration used: frames 0-29")
+
+
+def test_a_stored_camera_the_window_fits_worse_than_a_3_percent_change_is_not_used():
+    cal, asked, trials = _search_beside_stored(STALE, {"own+": 110.0, "own-": 105.0,
+                                                       "stored": 106.0})
+    assert cal.source == "self" and cal.camera == TRUE and len(asked) == 1
+    assert "the journey's own calibration is kept" in trials[-1]
+
+
+def test_a_stored_camera_that_agrees_or_has_another_size_is_not_put_to_the_window():
+    nearly = TRUE.replace(fx=TRUE.fx * 1.005)
+    other_size = CameraModel(1280, 720, 900.0, 900.0, 640.0, 360.0, -0.2, 0.05)
+    for stored in (nearly, other_size):
+        cal, asked, _ = _search_beside_stored(stored, {"own+": 1.0, "own-": 1.0, "stored": 0.0})
+        assert cal.source == "self" and cal.camera == TRUE and asked == []
+
+
+def test_by_default_a_stored_camera_is_not_put_to_the_window():
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+
+    accepted = _window(TRUE, error_px=0.2)
+    accepted.model_dir = Path("kept")
+
+    def held_fit(result, cameras):
+        raise AssertionError("asked")
+
+    cal = self_calibrate([CalibrationWindow(np.arange(30), 40)], PipelineConfig(),
+                         lambda w, start: accepted, width=1242, height=375, stored=STALE,
+                         held_fit=held_fit)
+    assert cal.source == "self" and cal.camera == TRUE

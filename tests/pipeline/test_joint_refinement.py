@@ -180,3 +180,27 @@ def test_the_joint_partner_is_another_turn_first_else_a_window_sharing_few_frame
     assert joint_partner([accepted, *same_turn, other_turn], accepted) is other_turn
     assert joint_partner([accepted, *same_turn], accepted) is same_turn[1]
     assert joint_partner([accepted, same_turn[0]], accepted) is None  # shares 77 % of its frames
+
+
+def test_a_window_held_at_another_camera_fits_worse_the_further_that_camera_is():
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import held_camera_sse
+
+    rng = np.random.default_rng(5)
+    rec = _window(pycolmap, rng, 0.0, noise_px=0.5)
+    n_obs = sum(p.track.length() for p in rec.points3D.values())
+    xyz_before = np.array([p.xyz for p in rec.points3D.values()])
+    true = np.array(TRUE_PARAMS)
+    longer = true.copy()
+    longer[:2] *= 1.03
+    much_longer = true.copy()
+    much_longer[:2] *= 1.10
+    sse = held_camera_sse(pycolmap, rec, [true, longer, much_longer], threads=1)
+    # At the truth what is left is the noise, 0.5^2 px^2 per degree of freedom: 2 coordinates
+    # per observation less the points' 3 and the poses' 6 (less the 7 of the gauge) it moved.
+    dof = 2 * n_obs - 3 * rec.num_points3D() - 6 * rec.num_reg_images() + 7
+    assert sse[0] == pytest.approx(0.25 * dof, rel=0.1)
+    # A focal length 3 % off costs ~10 % here, 10 % off nearly doubles it: poses and points
+    # absorb part of a wrong camera, never all of it.
+    assert sse[0] < 0.95 * sse[1] and sse[1] < 0.7 * sse[2]
+    np.testing.assert_array_equal(np.array([p.xyz for p in rec.points3D.values()]), xyz_before)

@@ -236,3 +236,36 @@ def merged(pycolmap, recs: list) -> tuple[object, tuple[int, ...]]:
             if track.length() >= 2:
                 out.add_point3D(point.xyz, track, point.color)
     return out, tuple(anchors)
+
+
+def held_camera_sse(pycolmap, rec, opencv_params: list[np.ndarray], *,
+                    clip_px: float = 4.0, max_iterations: int = 200,
+                    threads: int = -1) -> list[float]:
+    """For each OPENCV parameter vector: ``rec`` (left untouched) bundle-adjusted again with the
+    camera held at it, poses and points free; the sum of squared reprojection errors (px^2),
+    each error clipped at ``clip_px`` so that a few points far off do not decide. How well a
+    window's images fit a camera other than the one it calibrated (``calibrate.stored_or_own``)."""
+    out = []
+    for params in opencv_params:
+        held = pycolmap.Reconstruction(rec)
+        for cam in held.cameras.values():
+            cam.model = pycolmap.CameraModelId.OPENCV
+            cam.params = np.asarray(params, dtype=float)
+        options = presets.options(pycolmap, "BundleAdjustmentOptions",
+                                  presets.INTRINSICS_BUNDLE_ADJUSTMENT,
+                                  refine_focal_length=False, refine_principal_point=False,
+                                  refine_extra_params=False,
+                                  **{"ceres.loss_function_scale": 1.0,
+                                     "ceres.solver_options.max_num_iterations": max_iterations,
+                                     "ceres.solver_options.num_threads": threads})
+        pycolmap.bundle_adjustment(held, options)
+        sse = 0.0
+        for point in held.points3D.values():
+            for el in point.track.elements:
+                image = held.image(el.image_id)
+                xy = image.project_point(point.xyz)
+                error = clip_px if xy is None else min(
+                    clip_px, float(np.linalg.norm(xy - image.points2D[el.point2D_idx].xy)))
+                sse += error * error
+        out.append(sse)
+    return out

@@ -467,6 +467,32 @@ def refine_jointly(parts: list[WindowResult], workdir: Path, mapping: MappingOpt
                                       "while refining windows jointly") from exc
 
 
+def held_camera_fit(window: WindowResult, cameras: list[CameraModel], workdir: Path,
+                    mapping: MappingOptions, process: ProcessOptions,
+                    verbose: bool = False) -> list[float]:
+    """For each of ``cameras``: the kept model of ``window`` (``keep_model``) bundle-adjusted
+    with that camera held, its sum of squared reprojection errors (px^2,
+    ``refine.held_camera_sse``)."""
+    job = SfmJob(image_dir=workdir, workdir=workdir, extract_names=[], windows=[],
+                 mapping=mapping, process=process, verbose=verbose)
+    try:
+        with colmap_pool(1) as pool:
+            return pool.submit(_held_camera_fit_in_child, job, window.model_dir, cameras).result()
+    except cf.process.BrokenProcessPool as exc:
+        raise PipelineError("colmap", "COLMAP aborted the process (see the worker log) "
+                                      "while fitting a window to the stored camera") from exc
+
+
+def _held_camera_fit_in_child(job: SfmJob, model_dir: Path,
+                              cameras: list[CameraModel]) -> list[float]:
+    from app.pipeline.colmap.refine import held_camera_sse
+
+    pycolmap = _pycolmap(job)
+    params = [np.asarray(_colmap_camera(pycolmap, c).params, dtype=float) for c in cameras]
+    return held_camera_sse(pycolmap, pycolmap.Reconstruction(model_dir), params,
+                           threads=job.process.threads)
+
+
 def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) -> WindowResult:
     from app.pipeline.colmap.refine import merged, refine_all_intrinsics
 

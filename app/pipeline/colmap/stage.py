@@ -109,6 +109,13 @@ class StageSfm:
         return read_gray(path, self.stage)
 
 
+def held_camera_fit(window: sfm.WindowResult, cameras: list[CameraModel], *,
+                    config: PipelineConfig, workdir: Path, verbose: bool = False) -> list[float]:
+    """``sfm.held_camera_fit`` with the journey's COLMAP settings."""
+    return sfm.held_camera_fit(window, cameras, workdir, _mapping(config), _process(config),
+                               verbose)
+
+
 # JPEG decodes at a half, quarter or eighth of the size for a fraction of the time: the reductions
 # ``read_gray`` takes, and OpenCV's flag for each.
 REDUCED_READ = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2,

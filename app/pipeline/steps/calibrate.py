@@ -27,7 +27,7 @@ else is refused with every candidate's reason.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -347,6 +347,11 @@ def summary(calib: Calibration) -> str:
     """One line on a self-calibration: the window, its evidence, the camera and the fit."""
     (first, end), = calib.windows[:1] or [(0, 0)]
     c = calib.camera
+    if calib.source == "supplied" and calib.single_window is not None:
+        return (f"stored calibration used: frames {first}-{end - 1} self-calibrated to fx "
+                f"{calib.single_window.fx:.1f} but fit the stored camera as well "
+                f"(calib_stored_focal_margin); fx {c.fx:.1f}, fy {c.fy:.1f}, cx {c.cx:.1f}, "
+                f"cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
     return (f"self-calibrated on frames {first}-{end - 1} ({calib.evidence}): "
             f"{calib.n_registered}/{calib.n_images} registered, "
             f"{calib.reprojection_error_px:.2f} px; fx {c.fx:.1f}, fy {c.fy:.1f}, "
@@ -465,7 +470,9 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None,
                    trials: list[str] | None = None,
                    refine_jointly: JointRefiner | None = None,
-                   frame_names: Sequence[str] | None = None) -> Calibration:
+                   frame_names: Sequence[str] | None = None,
+                   stored: CameraModel | None = None,
+                   held_fit: HeldFit | None = None) -> Calibration:
     """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
     reason. ``map_window(window, start)`` maps the window's frames with free intrinsics from the
     camera ``start``. ``on_candidate(k, total, window)`` is called before the k-th is mapped;
@@ -473,7 +480,9 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     reprojection error and whether it was accepted or why not (the stage's report).
     ``refine_jointly`` (used when ``calib_joint``) refines the accepted window together with
     another; the joint camera replaces the single window's when it is plausible and fits.
-    ``frame_names``: the journey's image names, as ``map_window`` names registered images."""
+    ``frame_names``: the journey's image names, as ``map_window`` names registered images.
+    ``stored``: the camera's stored calibration, put to the accepted window (``held_fit``, which
+    needs its kept model) by ``stored_or_own``."""
     if not windows:
         raise no_turn_error(cfg)
     trials = [] if trials is None else trials
@@ -546,10 +555,51 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
         if partner is not None:
             best, used, evidence = joint, [window, partner], evidence + "+joint"
-    return Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
-                       n_images=best.n_input, n_registered=len(best.image_names),
-                       reprojection_error_px=best.reprojection_error_px,
-                       rotation_deg=rotation_covered_deg(accepted.T_model_cam),
-                       windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
-                       evidence=evidence, single_window=accepted.camera,
-                       focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
+    calib = Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
+                        n_images=best.n_input, n_registered=len(best.image_names),
+                        reprojection_error_px=best.reprojection_error_px,
+                        rotation_deg=rotation_covered_deg(accepted.T_model_cam),
+                        windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
+                        evidence=evidence, single_window=accepted.camera,
+                        focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
+    if stored is None or held_fit is None or accepted.model_dir is None:
+        return calib
+    return stored_or_own(calib, accepted, window.label, stored, held_fit, cfg, trials)
+
+
+# (window result, cameras) -> for each camera, the window's kept model bundle-adjusted with
+# it held: the sum of squared reprojection errors, px^2 (``colmap.sfm.held_camera_fit``).
+HeldFit = Callable[[WindowResult, list[CameraModel]], list[float]]
+
+
+def stored_or_own(calib: Calibration, accepted: WindowResult, label: str, stored: CameraModel,
+                  held_fit: HeldFit, cfg: PipelineConfig, trials: list[str]) -> Calibration:
+    """``calib``, or the camera's ``stored`` calibration when the accepted window cannot tell
+    the two apart: it fits ``stored`` (held) no worse than its own camera with fx and fy
+    ``calib_stored_focal_margin`` longer or shorter.
+
+    The window's own camera is its best fit by construction; how much worse a 3 % focal change
+    fits is the window's own measure of how sharply it sees the camera (a blurred or narrow
+    window, little; a sharp wide one, a lot). A stored camera inside that measure is one the
+    journey has no evidence against, and it is the consensus of the camera's other journeys; a
+    camera that really changed lies outside it on any window that could calibrate it."""
+    own = accepted.camera
+    margin = cfg.calib_stored_focal_margin
+    if (margin <= 0 or (stored.width, stored.height) != (own.width, own.height)
+            or _agree(own, stored, cfg)):
+        return calib
+    longer, shorter, held = held_fit(accepted, [
+        own.replace(fx=own.fx * (1 + margin), fy=own.fy * (1 + margin)),
+        own.replace(fx=own.fx * (1 - margin), fy=own.fy * (1 - margin)), stored])
+    bound = min(longer, shorter)
+    fits = (f"the stored camera (fx {stored.fx:.1f}, this window's {own.fx:.1f}) held on "
+            f"{label} fits {held / bound:.2f} x as badly as this window's own with fx "
+            f"{100 * margin:g} % off")
+    if held > bound:
+        trials.append(f"{fits}: the journey's own calibration is kept")
+        return calib
+    trials.append(f"{fits}: the stored one is used")
+    log.info("calibration: %s", fits)
+    return replace(calib, camera=stored, source="supplied", single_window=own,
+                   evidence="stored, not contradicted by " + calib.evidence,
+                   focal_std_rel=float("nan"), intrinsics_std=())
