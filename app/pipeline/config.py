@@ -129,26 +129,27 @@ class PipelineConfig(BaseModel):
     # 2026-11-27-corpus-reg-c-*).
     calib_min_registered_ratio: float = Field(
         0.6, description="a candidate window must register this share of its frames")
-    # A mapper that leaves part of a window out struggled from its start too (bench/results/
-    # 2026-11-29-retry-partial.md).
+    # At 1.0 (any frame left out: map again) a retry on tuning c0936 built a wrong minimum that
+    # registered every frame and replaced a right 18/22 model (38 -> 365 s): registering more is
+    # no sign of being right (bench/results/2026-11-29-retry-partial.md).
     calib_retry_below_ratio: float = Field(
         0.6, description="a candidate window registering less than this share of its frames is "
         "mapped again from calib_retry_focal_factors; the mapping registering more is kept")
-    # Half the corpus bar (fx within 1 %), chosen before measuring. COLMAP's covariance is
-    # optimistic (accepted calibrations' fx errors were a median 2.0 / 2.5 of it, tuning / check),
-    # so this refuses only windows that pin fx down poorly. Corpus, calibration only (2026-11-26):
-    # tuning half c0034 (fx -1.7 %) refused, nothing else changed; check half c0035 (+4.3 %,
-    # accepted before) refused, c0053 +0.49 -> +0.05 %.
     # A wrong acceptance cannot be told from a right one by its own evidence
     # (bench/results/2026-11-29-lone-gates.md), but a stored camera can be put to its window.
-    # Measured at 0.03 (the service's calibration_flag_rel) and left off: on the tuning half it
-    # took the true camera over one of the two acceptances more than 1 % off (c0838), not the
-    # other (c0866), the rule written first asked for both
+    # Measured at 0.03 (the service's calibration_flag_rel) and left off: on the tuning half the
+    # true camera replaced one of the two acceptances more than 1 % off (c0838), not the other
+    # (c0866), and a stored camera 3 % off replaced 6 of 8 right ones
     # (bench/results/2026-11-29-stored-camera-check.md; signmap bench corpus --stored-camera).
     calib_stored_focal_margin: float = Field(
         0.0, description="with a stored camera that disagrees with the journey's accepted "
         "self-calibration, map with the stored one when the accepted window fits it no worse "
         "than its own camera with fx, fy this fraction off either way (0: never)")
+    # Half the corpus bar (fx within 1 %), chosen before measuring. COLMAP's covariance is
+    # optimistic (accepted calibrations' fx errors were a median 2.0 / 2.5 of it, tuning / check),
+    # so this refuses only windows that pin fx down poorly. Corpus, calibration only (2026-11-26):
+    # tuning half c0034 (fx -1.7 %) refused, nothing else changed; check half c0035 (+4.3 %,
+    # accepted before) refused, c0053 +0.49 -> +0.05 %.
     calib_max_focal_std: float = Field(
         0.005, description="refuse a candidate whose stage-2 covariance leaves fx uncertain by "
         "more than this fraction (0: no such gate)")
