@@ -37,6 +37,8 @@ HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
 RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of",
                 "true_camera_focal_scale", "stored_camera")
+# What a run written before a field of RUN_IDENTITY existed had instead.
+IDENTITY_BEFORE = {"true_camera_focal_scale": 1.0, "stored_camera": False}
 
 
 class CorpusPaths(NamedTuple):
@@ -335,7 +337,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
     meta.pop("quick", None)
     old_meta, records = read_jsonl(jsonl) if resume and jsonl.exists() else (None, [])
     if old_meta is not None:
-        differs = [k for k in RUN_IDENTITY if old_meta.get(k) != finite(meta[k])]
+        differs = [k for k in RUN_IDENTITY
+                   if old_meta.get(k, IDENTITY_BEFORE.get(k)) != finite(meta[k])]
         if differs:
             raise ValueError(f"{jsonl} was run with other {', '.join(differs)}: use another --tag")
         meta = old_meta

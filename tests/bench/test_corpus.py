@@ -266,6 +266,27 @@ def _fake_corpus(root: Path) -> Path:
     return root
 
 
+def test_a_run_written_before_a_setup_field_existed_resumes_and_another_setup_does_not(
+        tmp_path: Path):
+    from bench.corpus import run_corpus
+
+    corpus = tmp_path / "corpus"
+    corpus.mkdir()
+    (corpus / "corpus.json").write_text(json.dumps({
+        "format": "signmap-corpus/1", "seed": 0, "n": 1, "journeys": [
+            {"name": "t1", "seed": 0, "half": "tuning", "dir": "t1", "params": {}}]}))
+    out = tmp_path / "out"
+    out.mkdir()
+    old_meta = {"kind": "meta", "corpus": str(corpus.resolve()), "calibrate_only": True,
+                "true_camera": False, "config_overrides": {}, "replay_of": None, "tag": "old"}
+    jsonl = out / "2026-11-01-corpus-old.jsonl"  # its only journey is done: nothing runs
+    jsonl.write_text(json.dumps(old_meta) + "\n" + json.dumps(_record("t1", "tuning")) + "\n")
+    paths = run_corpus(corpus, out, calibrate_only=True, tag="old", resume=True)
+    assert paths.jsonl == jsonl and "t1" in paths.markdown.read_text()
+    with pytest.raises(ValueError, match="stored_camera"):
+        run_corpus(corpus, out, calibrate_only=True, tag="old", resume=True, stored_camera=True)
+
+
 @pytest.mark.slow
 @pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):

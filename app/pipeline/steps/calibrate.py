@@ -578,9 +578,9 @@ def stored_or_own(calib: Calibration, accepted: WindowResult, label: str, stored
     the two apart: it fits ``stored`` (held) no worse than its own camera with fx and fy
     ``calib_stored_focal_margin`` longer or shorter.
 
-    The window's own camera is its best fit by construction; how much worse a 3 % focal change
-    fits is the window's own measure of how sharply it sees the camera (a blurred or narrow
-    window, little; a sharp wide one, a lot). A stored camera inside that measure is one the
+    The window's own camera is its best fit by construction; how much worse a focal change of
+    the margin fits is the window's own measure of how sharply it sees the camera (a blurred or
+    narrow window, little; a sharp wide one, a lot). A stored camera inside that measure is one the
     journey has no evidence against, and it is the consensus of the camera's other journeys; a
     camera that really changed lies outside it on any window that could calibrate it."""
     own = accepted.camera
