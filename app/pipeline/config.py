@@ -238,6 +238,11 @@ class PipelineConfig(BaseModel):
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")
+    # Measured on the tuning half (bench/results/2026-11-30-consensus.md): one window's stage 2
+    # sits in a valley so flat that windows of the same turn land 1-1.5 % apart around the truth.
+    calib_consensus_windows: int = Field(
+        1, ge=1, description="after a window is accepted, map later candidates from its camera "
+        "until this many windows agree with it, and take each intrinsic's median over them")
     calib_agreement: float = Field(
         0.015, description="two candidate windows whose focal lengths agree to this fraction "
         "(principal points to this fraction of the width) end the search")
