@@ -1,5 +1,6 @@
 """``signmap bench [--quick]``, ``signmap bench sensitivity``, ``signmap bench fusion`` and
-``signmap bench corpus`` and ``signmap bench map``: argument parsing only."""
+``signmap bench corpus``, ``signmap bench render-check`` and ``signmap bench map``: argument
+parsing only."""
 
 from __future__ import annotations
 
@@ -50,6 +51,14 @@ def run_fusion_command(args) -> int:
     md, js = run_fusion(quick=args.quick, out_dir=args.out, cache_dir=args.cache)
     print(md.read_text())
     print(f"wrote {md} and {js}")
+    return 0
+
+
+def run_render_check_command(args) -> int:
+    from bench.render_check import run_render_check
+
+    md = run_render_check(args.corpus, args.names, args.out)
+    print(f"wrote {md}")
     return 0
 
 
@@ -421,6 +430,17 @@ def add_parsers(sub) -> None:
     cc.add_argument("--before", type=Path, nargs="+", required=True, help="JSONL files")
     cc.add_argument("--after", type=Path, nargs="+", required=True, help="JSONL files")
     cc.set_defaults(func=run_corpus_compare_command)
+    rc = bench_sub.add_parser(
+        "render-check", help="does each rendered journey's imagery fit its own true camera?",
+        description="SIFT matches between frames of each journey's sharpest turn, triangulated "
+        "with the true poses and projected through the true camera with fx, fy scaled by "
+        "0.98-1.02: a faithful render fits best at 1. Writes <date>-render-check.md.")
+    rc.add_argument("--corpus", type=Path, required=True, help="a `signmap synth corpus` directory")
+    rc.add_argument("--names", type=lambda t: [n for n in t.split(",") if n], default=None,
+                    help="comma-separated journey names (default: all)")
+    rc.add_argument("--out", type=Path, default=BENCH_DIR / "results",
+                    help="where the markdown goes (default bench/results)")
+    rc.set_defaults(func=run_render_check_command)
     _add_map_parser(bench_sub)
     from bench.api_load import add_parser as add_api_parser
 
