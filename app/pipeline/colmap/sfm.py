@@ -261,7 +261,7 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
 def _again_from_stage2(pycolmap, job: SfmJob, index: int, window: WindowRequest,
                        result: WindowResult) -> WindowResult:
     """``result``, or the window mapped again from its stage-2 camera when stage 2 moved fx by
-    more than ``window.remap_moved_focal``.
+    more than ``window.remap_moved_focal`` (from stage 2's whole camera).
 
     Stage 1 triangulates and filters the window's points under its own camera; where that was
     10 % off, stage 2 refines from points kept for the wrong camera. On lenses with little
@@ -273,8 +273,11 @@ def _again_from_stage2(pycolmap, job: SfmJob, index: int, window: WindowRequest,
     moved = abs(result.camera.fx / result.stage1_camera.fx - 1.0)
     if moved <= window.remap_moved_focal:
         return result
-    focal_px = 0.5 * (result.camera.fx + result.camera.fy)
-    start = window.camera.replace(fx=focal_px, fy=focal_px, k1=result.camera.k1)
+    # Stage 1 holds the principal point where it starts: from stage 2's, not the centre. From
+    # stage 2's focal length and k1 alone, stage 1 went back to +9.8 % (tuning c0844).
+    c = result.camera
+    focal_px = 0.5 * (c.fx + c.fy)
+    start = window.camera.replace(fx=focal_px, fy=focal_px, cx=c.cx, cy=c.cy, k1=c.k1, k2=c.k2)
     again = _map_window(pycolmap, job, job.workdir / "features.db", index,
                         replace(window, camera=start), suffix="_again")
     log.info("window %d: mapped again from stage 2's fx %.0f (moved %.1f %% from stage 1): "
