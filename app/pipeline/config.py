@@ -132,10 +132,6 @@ class PipelineConfig(BaseModel):
     # At 1.0 (any frame left out: map again) a retry on tuning c0936 built a wrong minimum that
     # registered every frame and replaced a right 18/22 model (38 -> 365 s): registering more is
     # no sign of being right (bench/results/2026-11-29-retry-partial.md).
-    # Registered 2026-11-30 (bench/results/2026-11-30-remap.md) before any corpus run of it.
-    calib_remap_moved_focal: float = Field(
-        0.0, ge=0.0, description="when stage 2 moves a candidate's fx further than this fraction "
-        "from stage 1's, map the window again from stage 2's camera (0: never)")
     calib_retry_below_ratio: float = Field(
         0.6, description="a candidate window registering less than this share of its frames is "
         "mapped again from calib_retry_focal_factors; the mapping registering more is kept")
@@ -242,11 +238,6 @@ class PipelineConfig(BaseModel):
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")
-    # Measured on the tuning half (bench/results/2026-11-30-consensus.md): one window's stage 2
-    # sits in a valley so flat that windows of the same turn land 1-1.5 % apart around the truth.
-    calib_consensus_windows: int = Field(
-        1, ge=1, description="after a window is accepted, map later candidates from its camera "
-        "until this many windows agree with it, and take each intrinsic's median over them")
     calib_agreement: float = Field(
         0.015, description="two candidate windows whose focal lengths agree to this fraction "
         "(principal points to this fraction of the width) end the search")

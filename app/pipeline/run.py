@@ -206,8 +206,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
             image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
             keep_model=config.calib_joint or check_stored,
             retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
-            retry_below=int(np.ceil(config.calib_retry_below_ratio * n_images)),
-            remap_moved_focal=config.calib_remap_moved_focal)
+            retry_below=int(np.ceil(config.calib_retry_below_ratio * n_images)))
         return calibrate_stage(window, "calibrate").run([request], None)[0]
 
     def refine_jointly(window: CalibrationWindow, accepted: WindowResult,

@@ -508,23 +508,3 @@ def test_by_default_a_stored_camera_is_not_put_to_the_window():
                          lambda w, start: accepted, width=1242, height=375, stored=STALE,
                          held_fit=held_fit)
     assert cal.source == "self" and cal.camera == TRUE
-
-
-def test_with_a_consensus_each_intrinsic_is_the_median_of_the_windows_that_agree():
-    lo = TRUE.replace(fx=TRUE.fx * 0.99, k1=TRUE.k1 - 0.004)
-    hi = TRUE.replace(fx=TRUE.fx * 1.004, k1=TRUE.k1 + 0.003)
-    far = TRUE.replace(fx=TRUE.fx * 1.01)  # agrees with the truth, not with the accepted lo
-    results = [_window(lo, error_px=0.2), _window(WRONG, error_px=0.1), _window(far),
-               _window(hi, error_px=0.25), _window(TRUE, error_px=0.3), _window(hi)]
-    cal, tried = _search(results, config=PipelineConfig(calib_consensus_windows=3))
-    # WRONG fits sharply but is another camera, ``far`` is 2 % from the accepted window: neither
-    # is a witness. The search stops at three.
-    assert tried == [0, 1, 2, 3, 4] and cal.evidence == "reprojection+median of 3"
-    assert cal.camera == TRUE.replace(fx=TRUE.fx, k1=TRUE.k1)
-    assert cal.single_window == lo and len(cal.windows) == 3
-
-
-def test_by_default_the_accepted_window_alone_is_the_calibration():
-    lo = TRUE.replace(fx=TRUE.fx * 0.99)
-    cal, tried = _search([_window(lo, error_px=0.2), _window(TRUE), _window(TRUE)])
-    assert tried == [0] and cal.camera == lo and cal.evidence == "reprojection"

@@ -62,10 +62,6 @@ class WindowRequest:
     # that registered most is kept.
     retry_focals_px: tuple[float, ...] = ()
     retry_below: int = 0
-    # With ``calibrate``: when stage 2 moves fx further than this fraction from stage 1's, map
-    # the window again from stage 2's focal length and k1 and keep that mapping when it registers
-    # as many images (0: never).
-    remap_moved_focal: float = 0.0
 
 
 @dataclass
@@ -103,9 +99,6 @@ class WindowResult:
     # The focal length (px) stage 1 started from when this is the mapping of a retry
     # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
     retry_focal_px: float = float("nan")
-    # How far (a fraction) stage 2 had moved fx from stage 1 in the mapping this one replaced
-    # (``WindowRequest.remap_moved_focal``); nan: not mapped again.
-    remapped_moved_focal: float = float("nan")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -221,7 +214,6 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
     if window.calibrate:
         result = _retry_from_other_focals(pycolmap, job, index, window, result)
-        result = _again_from_stage2(pycolmap, job, index, window, result)
     # A window that built no model already tried COLMAP's own initial pair last (``_map_window``).
     run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
     if run and result.image_names:
@@ -256,38 +248,6 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
         if len(again.image_names) > len(result.image_names):
             result = again
     return result
-
-
-def _again_from_stage2(pycolmap, job: SfmJob, index: int, window: WindowRequest,
-                       result: WindowResult) -> WindowResult:
-    """``result``, or the window mapped again from its stage-2 camera when stage 2 moved fx by
-    more than ``window.remap_moved_focal`` (from stage 2's whole camera).
-
-    Stage 1 triangulates and filters the window's points under its own camera; where that was
-    10 % off, stage 2 refines from points kept for the wrong camera. On lenses with little
-    distortion, stage 2's fx error followed stage 1's (correlation 0.61 over 26 accepted
-    generator-2 journeys; stage 1 +10 % ended +0.8-1.0 %, 2026-11-30)."""
-    if not (window.remap_moved_focal > 0 and result.stage1_camera is not None
-            and not result.error):
-        return result
-    moved = abs(result.camera.fx / result.stage1_camera.fx - 1.0)
-    if moved <= window.remap_moved_focal:
-        return result
-    # Stage 1 holds the principal point where it starts: from stage 2's, not the centre. From
-    # stage 2's focal length and k1 alone, stage 1 went back to +9.8 % (tuning c0844).
-    c = result.camera
-    focal_px = 0.5 * (c.fx + c.fy)
-    start = window.camera.replace(fx=focal_px, fy=focal_px, cx=c.cx, cy=c.cy, k1=c.k1, k2=c.k2)
-    again = _map_window(pycolmap, job, job.workdir / "features.db", index,
-                        replace(window, camera=start), suffix="_again")
-    log.info("window %d: mapped again from stage 2's fx %.0f (moved %.1f %% from stage 1): "
-             "%d/%d images, fx %.1f", index, focal_px, 100 * moved, len(again.image_names),
-             again.n_input, again.camera.fx)
-    if again.error or len(again.image_names) < len(result.image_names):
-        return result
-    again.remapped_moved_focal = moved
-    again.retry_focal_px = result.retry_focal_px
-    return again
 
 
 def leftover_run(names: list[str], registered: list[str], min_images: int) -> list[str]:

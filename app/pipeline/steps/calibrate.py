@@ -27,7 +27,6 @@ else is refused with every candidate's reason.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
@@ -390,9 +389,6 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
         spread += f" (fy {c.fy:.1f}, cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.4f})"
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
-    if np.isfinite(res.remapped_moved_focal):
-        start += (f" (mapped again from stage 2's camera, which moved fx "
-                  f"{100 * res.remapped_moved_focal:.1f} % from stage 1)")
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
            if np.isfinite(window.gps_rotation_deg) else "")
     if gps and window.gps_frame_idx is not None and len(window.gps_frame_idx) < len(
@@ -495,9 +491,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     good: list[tuple[CalibrationWindow, WindowResult]] = []
     chosen: list[tuple[CalibrationWindow, WindowResult]] = []
     evidence = ""
-    tried = 0
     for k, window in enumerate(windows):
-        tried = k + 1
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
@@ -557,12 +551,6 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                             + "; ".join(reasons))
     window, accepted = min(chosen, key=lambda g: g[1].reprojection_error_px)
     best, used = accepted, [window]
-    if cfg.calib_consensus_windows > 1:
-        chosen += _witnesses(windows[tried:], accepted, cfg, map_window, frame_names, trials,
-                             cfg.calib_consensus_windows - len(chosen))
-        if len(chosen) > 1:
-            best = replace(accepted, camera=median_camera([r.camera for _, r in chosen]))
-            used, evidence = [w for w, _ in chosen], evidence + f"+median of {len(chosen)}"
     if cfg.calib_joint and refine_jointly is not None:
         joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
         if partner is not None:
@@ -577,39 +565,6 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     if stored is None or held_fit is None or accepted.model_dir is None:
         return calib
     return stored_or_own(calib, accepted, window.label, stored, held_fit, cfg, trials)
-
-
-def _witnesses(rest: list[CalibrationWindow], accepted: WindowResult, cfg: PipelineConfig,
-               map_window: Callable[[CalibrationWindow, CameraModel], WindowResult],
-               frame_names: Sequence[str] | None, trials: list[str],
-               wanted: int) -> list[tuple[CalibrationWindow, WindowResult]]:
-    """Up to ``wanted`` of the candidates ``rest``, mapped from the accepted camera, that pass
-    the judge and agree with it (``calib_consensus_windows``)."""
-    found: list[tuple[CalibrationWindow, WindowResult]] = []
-    start = seeded_start(accepted.camera)
-    for window in rest:
-        if len(found) >= wanted:
-            break
-        t0 = time.perf_counter()
-        res = map_window(window, start)
-        gps_turn_deg = _rotation_where_gps_measured(window, res, frame_names)
-        why = judge_window(res, cfg) or _turns_beyond_gps(window, gps_turn_deg, cfg)
-        if why is None and not _agree(accepted.camera, res.camera, cfg):
-            why = "disagrees with the accepted window"
-        c = res.camera
-        trials.append(f"{_trial(window, res, gps_turn_deg)}: witness in "
-                      f"{time.perf_counter() - t0:.1f} s (fy {c.fy:.1f}, cx {c.cx:.1f}, "
-                      f"cy {c.cy:.1f}, k1 {c.k1:+.4f}, k2 {c.k2:+.4f}), "
-                      + (f"not counted, {why}" if why else "counted"))
-        if why is None:
-            found.append((window, res))
-    return found
-
-
-def median_camera(cameras: list[CameraModel]) -> CameraModel:
-    """Each intrinsic's median over ``cameras`` (of one image size)."""
-    params = {k: float(np.median([c.params()[k] for c in cameras])) for k in cameras[0].params()}
-    return CameraModel.from_params(cameras[0].width, cameras[0].height, params)
 
 
 # (window result, cameras) -> for each camera, the window's kept model bundle-adjusted with
