@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 SCALES = (0.98, 0.99, 0.995, 1.0, 1.005, 1.01, 1.02)
-# OpenCV's default 5 iterations leave corner pixels of wide or strongly distorted lenses
-# undistorted by up to pixels, which reads as a focal error (c0850, 92 deg: best scale 1.017).
+# OpenCV's default 5 iterations leave the corners of wide or strongly distorted lenses short of
+# their undistorted place, which reads as a focal error (c0850, 92 deg: best scale 1.017, not 1.002).
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MAX_ERROR_PX = 3.0  # matches further off than this at any scale are wrong matches, not signal
 
@@ -129,6 +129,7 @@ def check_journey(journey_dir: Path, n_pairs: int = 8) -> tuple[FocalScan, dict]
 
 
 def check_bundle(bundle: Path, truth: dict, n_pairs: int = 8) -> FocalScan:
+    """``focal_scan`` of ``n_pairs`` pairs of a journey's bundle, with its truth file's poses."""
     T_world_cam = np.array([f["T_world_cam"] for f in truth["frames"]], float)
     with zipfile.ZipFile(bundle) as z:
         members = {Path(n).stem: n for n in z.namelist() if n.startswith("frames/")}
