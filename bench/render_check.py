@@ -23,7 +23,8 @@ import numpy as np
 
 SCALES = (0.98, 0.99, 0.995, 1.0, 1.005, 1.01, 1.02)
 # OpenCV's default 5 iterations leave the corners of wide or strongly distorted lenses short of
-# their undistorted place, which reads as a focal error (c0850, 92 deg: best scale 1.017, not 1.002).
+# their undistorted place, which reads as a focal error (c0850, 92 deg: best scale 1.017, not
+# 1.002).
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MAX_ERROR_PX = 3.0  # matches further off than this at any scale are wrong matches, not signal
 
