@@ -204,3 +204,26 @@ def test_a_window_held_at_another_camera_fits_worse_the_further_that_camera_is()
     # absorb part of a wrong camera, never all of it.
     assert sse[0] < 0.95 * sse[1] and sse[1] < 0.7 * sse[2]
     np.testing.assert_array_equal(np.array([p.xyz for p in rec.points3D.values()]), xyz_before)
+
+
+def test_the_stage_2_probe_steps_towards_a_camera_the_window_fits_better_and_not_away():
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import _held_fit, probe_focal
+
+    rng = np.random.default_rng(5)
+    rec = _window(pycolmap, rng, 0.0, noise_px=0.5)
+    short = np.array(TRUE_PARAMS)
+    short[:2] *= 0.9
+    # Poses and points fitted to a camera 10 % short: the structure a stage 1 far off leaves.
+    stuck = _held_fit(pycolmap, rec, short, 200, 1)
+    refits = []
+    out, moves, _ = probe_focal(pycolmap, stuck, step=0.03, max_moves=3,
+                                refine=lambda r: refits.append(r), threads=1)
+    assert moves == [1.03, 1.03, 1.03] and len(refits) == 3
+    fx = next(iter(out.cameras.values())).params[0]
+    assert fx == pytest.approx(TRUE_PARAMS[0] * 0.9 * 1.03 ** 3, rel=1e-9)
+    # At the truth neither probe fits better: nothing moves and stage 2 does not run again.
+    refits.clear()
+    out, moves, std = probe_focal(pycolmap, rec, step=0.03, max_moves=3,
+                                  refine=lambda r: refits.append(r), threads=1)
+    assert moves == [] and refits == [] and std is None and out is rec

@@ -9,6 +9,8 @@ parameter block. Runs inside the COLMAP child process (``colmap.sfm``).
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from app.pipeline.colmap import presets
@@ -247,25 +249,64 @@ def held_camera_sse(pycolmap, rec, opencv_params: list[np.ndarray], *,
     window's images fit a camera other than the one it calibrated (``calibrate.stored_or_own``)."""
     out = []
     for params in opencv_params:
-        held = pycolmap.Reconstruction(rec)
-        for cam in held.cameras.values():
-            cam.model = pycolmap.CameraModelId.OPENCV
-            cam.params = np.asarray(params, dtype=float)
-        options = presets.options(pycolmap, "BundleAdjustmentOptions",
-                                  presets.INTRINSICS_BUNDLE_ADJUSTMENT,
-                                  refine_focal_length=False, refine_principal_point=False,
-                                  refine_extra_params=False,
-                                  **{"ceres.loss_function_scale": 1.0,
-                                     "ceres.solver_options.max_num_iterations": max_iterations,
-                                     "ceres.solver_options.num_threads": threads})
-        pycolmap.bundle_adjustment(held, options)
-        sse = 0.0
-        for point in held.points3D.values():
-            for el in point.track.elements:
-                image = held.image(el.image_id)
-                xy = image.project_point(point.xyz)
-                error = clip_px if xy is None else min(
-                    clip_px, float(np.linalg.norm(xy - image.points2D[el.point2D_idx].xy)))
-                sse += error * error
-        out.append(sse)
+        errors = _errors_px(_held_fit(pycolmap, rec, params, max_iterations, threads))
+        out.append(float(np.sum(np.minimum(np.nan_to_num(errors, nan=clip_px), clip_px) ** 2)))
     return out
+
+
+def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: int):
+    """A copy of ``rec`` bundle-adjusted with the camera held at the OPENCV ``params``."""
+    held = pycolmap.Reconstruction(rec)
+    for cam in held.cameras.values():
+        cam.model = pycolmap.CameraModelId.OPENCV
+        cam.params = np.asarray(params, dtype=float)
+    options = presets.options(pycolmap, "BundleAdjustmentOptions",
+                              presets.INTRINSICS_BUNDLE_ADJUSTMENT,
+                              refine_focal_length=False, refine_principal_point=False,
+                              refine_extra_params=False,
+                              **{"ceres.loss_function_scale": 1.0,
+                                 "ceres.solver_options.max_num_iterations": max_iterations,
+                                 "ceres.solver_options.num_threads": threads})
+    pycolmap.bundle_adjustment(held, options)
+    return held
+
+
+def _errors_px(rec) -> np.ndarray:
+    """Every observation's reprojection error (px; nan where the point is behind the camera)."""
+    out = []
+    for point in rec.points3D.values():
+        for el in point.track.elements:
+            image = rec.image(el.image_id)
+            xy = image.project_point(point.xyz)
+            out.append(np.nan if xy is None
+                       else float(np.linalg.norm(xy - image.points2D[el.point2D_idx].xy)))
+    return np.asarray(out)
+
+
+def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
+                refine: Callable[[object], np.ndarray], max_iterations: int = 200,
+                threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
+    """Stage 2 ends at the minimum of the structure stage 1 built; from a stage 1 13 % off that
+    was 28 % short on a tuning window whose images fit the truth far better
+    (bench/results/2026-11-30-stage1-structure.md). So: hold the camera at its fx, fy times
+    1 - ``step`` and 1 + ``step`` and at itself, each in a bundle adjustment of poses and points
+    (Cauchy, 1 px); when a probe costs less than the camera itself, ``refine`` (stage 2) runs
+    again from that adjusted copy. At most ``max_moves`` times. Returns the reconstruction, the
+    scales moved by, and the last ``refine``'s result (None if it never ran)."""
+    moves: list[float] = []
+    std = None
+    for _ in range(max_moves):
+        own = np.asarray(next(iter(rec.cameras.values())).params, dtype=float)
+        fits = []
+        for scale in (1.0, 1.0 - step, 1.0 + step):
+            params = own.copy()
+            params[:2] *= scale
+            held = _held_fit(pycolmap, rec, params, max_iterations, threads)
+            errors = _errors_px(held)
+            fits.append((float(np.sum(np.log1p(errors[np.isfinite(errors)] ** 2))), scale, held))
+        cost, scale, held = min(fits, key=lambda f: f[0])
+        if scale == 1.0:
+            break
+        rec, std = held, refine(held)
+        moves.append(scale)
+    return rec, moves, std

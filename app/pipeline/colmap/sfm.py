@@ -99,6 +99,9 @@ class WindowResult:
     # The focal length (px) stage 1 started from when this is the mapping of a retry
     # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
     retry_focal_px: float = float("nan")
+    # The focal scales stage 2 was started again from (``MappingOptions.stage2_probe``).
+    probe_moves: tuple[float, ...] = ()
+    unprobed_camera: CameraModel | None = None  # stage 2's camera before those
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -423,14 +426,24 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
-    std, spread = None, {}
+    std, spread, moves, unprobed = None, {}, [], None
     if window.calibrate:
-        from app.pipeline.colmap.refine import refine_all_intrinsics, split_spread
-        std = refine_all_intrinsics(
-            pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
-            max_iterations=job.mapping.stage2_max_iterations,
-            aspect_sigma=job.mapping.aspect_prior_sigma, refits=job.mapping.stage2_refits,
-            threads=job.process.threads)
+        from app.pipeline.colmap.refine import probe_focal, refine_all_intrinsics, split_spread
+
+        def stage2(rec) -> np.ndarray:
+            return refine_all_intrinsics(
+                pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
+                max_iterations=job.mapping.stage2_max_iterations,
+                aspect_sigma=job.mapping.aspect_prior_sigma, refits=job.mapping.stage2_refits,
+                threads=job.process.threads)
+
+        std = stage2(rec)
+        if job.mapping.stage2_probe > 0:
+            unprobed = camera_model(next(iter(rec.cameras.values())))
+            rec, moves, probed_std = probe_focal(pycolmap, rec, step=job.mapping.stage2_probe,
+                                                 max_moves=3, refine=stage2,
+                                                 threads=job.process.threads)
+            std = std if probed_std is None else probed_std
         if job.mapping.split_spread:
             spread = split_spread(pycolmap, rec,
                                   function_tolerance=job.mapping.ba_function_tolerance,
@@ -440,6 +453,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
                             with_depths=window.keypoint_depths)
     result.split_spread = {k: tuple(float(x) for x in v) for k, v in spread.items()}
+    result.probe_moves = tuple(moves)
+    result.unprobed_camera = unprobed if moves else None
     if std is not None:
         result.intrinsics_std = tuple(float(v) for v in std)
         result.focal_std_rel = float(std[0]) / result.camera.fx

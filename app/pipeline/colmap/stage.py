@@ -138,7 +138,8 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
                           stage1_k2=cfg.calib_stage1_k2,
                           split_spread=cfg.calib_split_spread,
                           stage2_max_iterations=cfg.calib_stage2_max_iterations,
-                          stage2_refits=cfg.calib_stage2_refits)
+                          stage2_refits=cfg.calib_stage2_refits,
+                          stage2_probe=cfg.calib_stage2_probe)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:

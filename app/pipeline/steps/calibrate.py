@@ -389,6 +389,11 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
         spread += f" (fy {c.fy:.1f}, cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.4f})"
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
+    if res.probe_moves and res.unprobed_camera is not None:
+        c = res.unprobed_camera
+        start += (f" (stage 2 again from fx x {', x '.join(f'{m:g}' for m in res.probe_moves)};"
+                  f" before: fx {c.fx:.1f}, fy {c.fy:.1f}, cx {c.cx:.1f}, cy {c.cy:.1f},"
+                  f" k1 {c.k1:+.4f})")
     gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f})"
            if np.isfinite(window.gps_rotation_deg) else "")
     if gps and window.gps_frame_idx is not None and len(window.gps_frame_idx) < len(
