@@ -215,7 +215,7 @@ def test_the_stage_2_probe_steps_towards_a_camera_the_window_fits_better_and_not
     short = np.array(TRUE_PARAMS)
     short[:2] *= 0.9
     # Poses and points fitted to a camera 10 % short: the structure a stage 1 far off leaves.
-    stuck = _held_fit(pycolmap, rec, short, 200, 1)
+    stuck = _held_fit(pycolmap, rec, short, 200, 1, 0.0)
     refits = []
     out, moves, _ = probe_focal(pycolmap, stuck, step=0.03, max_moves=3,
                                 refine=lambda r: refits.append(r), threads=1)

@@ -249,13 +249,15 @@ def held_camera_sse(pycolmap, rec, opencv_params: list[np.ndarray], *,
     window's images fit a camera other than the one it calibrated (``calibrate.stored_or_own``)."""
     out = []
     for params in opencv_params:
-        errors = _errors_px(_held_fit(pycolmap, rec, params, max_iterations, threads))
+        errors = _errors_px(_held_fit(pycolmap, rec, params, max_iterations, threads, 0.0))
         out.append(float(np.sum(np.minimum(np.nan_to_num(errors, nan=clip_px), clip_px) ** 2)))
     return out
 
 
-def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: int):
-    """A copy of ``rec`` bundle-adjusted with the camera held at the OPENCV ``params``."""
+def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: int,
+              function_tolerance: float):
+    """A copy of ``rec`` bundle-adjusted with the camera held at the OPENCV ``params``
+    (``function_tolerance`` 0: every iteration up to ``max_iterations``)."""
     held = pycolmap.Reconstruction(rec)
     for cam in held.cameras.values():
         cam.model = pycolmap.CameraModelId.OPENCV
@@ -266,6 +268,7 @@ def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: i
                               refine_extra_params=False,
                               **{"ceres.loss_function_scale": 1.0,
                                  "ceres.solver_options.max_num_iterations": max_iterations,
+                                 "ceres.solver_options.function_tolerance": function_tolerance,
                                  "ceres.solver_options.num_threads": threads})
     pycolmap.bundle_adjustment(held, options)
     return held
@@ -285,12 +288,13 @@ def _errors_px(rec) -> np.ndarray:
 
 def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
                 refine: Callable[[object], np.ndarray], max_iterations: int = 200,
-                threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
+                function_tolerance: float = 1e-6, threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
     """Stage 2 ends at the minimum of the structure stage 1 built; from a stage 1 13 % off that
     was 28 % short on a tuning window whose images fit the truth far better
     (bench/results/2026-11-30-stage1-structure.md). So: hold the camera at its fx, fy times
     1 - ``step`` and 1 + ``step`` and at itself, each in a bundle adjustment of poses and points
-    (Cauchy, 1 px); when a probe costs less than the camera itself, ``refine`` (stage 2) runs
+    (Cauchy, 1 px; stopping as stage 2's do at ``function_tolerance``: COLMAP's default 0 ran
+    each fit to 200 iterations, 6 s on tuning c0846); when a probe costs less than the camera itself, ``refine`` (stage 2) runs
     again from that adjusted copy. At most ``max_moves`` times. Returns the reconstruction, the
     scales moved by, and the last ``refine``'s result (None if it never ran)."""
     moves: list[float] = []
@@ -301,7 +305,7 @@ def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
         for scale in (1.0, 1.0 - step, 1.0 + step):
             params = own.copy()
             params[:2] *= scale
-            held = _held_fit(pycolmap, rec, params, max_iterations, threads)
+            held = _held_fit(pycolmap, rec, params, max_iterations, threads, function_tolerance)
             errors = _errors_px(held)
             fits.append((float(np.sum(np.log1p(errors[np.isfinite(errors)] ** 2))), scale, held))
         cost, scale, held = min(fits, key=lambda f: f[0])
