@@ -288,15 +288,17 @@ def _errors_px(rec) -> np.ndarray:
 
 def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
                 refine: Callable[[object], np.ndarray], max_iterations: int = 200,
-                function_tolerance: float = 1e-6, threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
+                function_tolerance: float = 1e-6,
+                threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
     """Stage 2 ends at the minimum of the structure stage 1 built; from a stage 1 13 % off that
     was 28 % short on a tuning window whose images fit the truth far better
     (bench/results/2026-11-30-stage1-structure.md). So: hold the camera at its fx, fy times
     1 - ``step`` and 1 + ``step`` and at itself, each in a bundle adjustment of poses and points
     (Cauchy, 1 px; stopping as stage 2's do at ``function_tolerance``: COLMAP's default 0 ran
-    each fit to 200 iterations, 6 s on tuning c0846); when a probe costs less than the camera itself, ``refine`` (stage 2) runs
-    again from that adjusted copy. At most ``max_moves`` times. Returns the reconstruction, the
-    scales moved by, and the last ``refine``'s result (None if it never ran)."""
+    each fit to 200 iterations, 6 s on tuning c0846); when a probe costs less than the camera
+    itself, ``refine`` (stage 2) runs again from that adjusted copy. At most ``max_moves`` times.
+    Returns the reconstruction, the scales moved by, and the last ``refine``'s result (None if it
+    never ran)."""
     moves: list[float] = []
     std = None
     for _ in range(max_moves):
