@@ -132,13 +132,6 @@ class PipelineConfig(BaseModel):
     # At 1.0 (any frame left out: map again) a retry on tuning c0936 built a wrong minimum that
     # registered every frame and replaced a right 18/22 model (38 -> 365 s): registering more is
     # no sign of being right (bench/results/2026-11-29-retry-partial.md).
-    # A stage 1 far off leaves a structure whose own minimum stage 2 stops in (check c0877,
-    # -13.1 %); at 0.03 the probe found c0877's way out and moved no tuning window, but its three
-    # held fits per candidate window took turn-70's calibrate from 11.0 to 15.9 s
-    # (bench/results/2026-11-30-stage2-probe.md): off until they cost less.
-    calib_stage2_probe: float = Field(
-        0.0, ge=0.0, lt=0.5, description="after stage 2, hold the camera at fx, fy times 1 - "
-        "and 1 + this; when one fits the window better, run stage 2 again from it (0: never)")
     calib_retry_below_ratio: float = Field(
         0.6, description="a candidate window registering less than this share of its frames is "
         "mapped again from calib_retry_focal_factors; the mapping registering more is kept")
@@ -283,6 +276,13 @@ class PipelineConfig(BaseModel):
     calib_stage2_refits: int = Field(
         0, ge=0, description="bundle adjustments stage 2 runs again after it drops its "
         "outlying observations (bench/results/2026-11-29-stage2-refit.md)")
+    # A stage 1 far off leaves a structure whose own minimum stage 2 stops in (check c0877,
+    # -13.1 %); at 0.03 the probe found c0877's way out and moved no tuning window, but its three
+    # held fits per candidate window took turn-70's calibrate from 11.0 to 15.9 s
+    # (bench/results/2026-11-30-stage2-probe.md): off until they cost less.
+    calib_stage2_probe: float = Field(
+        0.0, ge=0.0, lt=0.5, description="after stage 2, hold the camera at fx, fy times 1 - "
+        "and 1 + this; when one fits the window better, run stage 2 again from it (0: never)")
     ba_max_refinements: int = Field(
         1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 
