@@ -21,11 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from app.pipeline.geometry.triangulation import undistort_pixels
+from app.pipeline.types import CameraModel
+
 SCALES = (0.98, 0.99, 0.995, 1.0, 1.005, 1.01, 1.02)
-# OpenCV's default 5 iterations leave the corners of wide or strongly distorted lenses short of
-# their undistorted place, which reads as a focal error (c0850, 92 deg: best scale 1.017, not
-# 1.002).
-UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MAX_ERROR_PX = 3.0  # matches further off than this at any scale are wrong matches, not signal
 
 
@@ -88,13 +87,15 @@ def sift_matches(gray_i: np.ndarray, gray_j: np.ndarray, *, max_features: int = 
             np.float32([kp_j[m.trainIdx].pt for m in good]).reshape(-1, 2))
 
 
-def _errors_px(pair: PairMatches, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+def _errors_px(pair: PairMatches, camera: CameraModel) -> np.ndarray:
     """Per match, the larger of its two reprojection errors (px) after triangulating it with the
-    pair's true poses; inf behind either camera."""
+    pair's true poses; inf behind either camera. The undistortion is the pipeline's, whose tight
+    criteria matter here: OpenCV's default 5 iterations leave the corners of wide lenses short of
+    their place, which reads as a focal error (c0850, 92 deg: best scale 1.017, not 1.002)."""
     P = [np.linalg.inv(T)[:3] for T in (pair.T_world_cam_i, pair.T_world_cam_j)]
     px = (pair.px_i, pair.px_j)
-    n = [cv2.undistortPoints(p.reshape(-1, 1, 2).astype(np.float64), K, dist,
-                             criteria=UNDISTORT_CRITERIA).reshape(-1, 2) for p in px]
+    K, dist = camera.K, camera.dist
+    n = [(undistort_pixels(camera, p) - K[:2, 2]) / np.diag(K)[:2] for p in px]
     X_h = cv2.triangulatePoints(P[0], P[1], n[0].T, n[1].T)
     p_world = (X_h[:3] / X_h[3]).T
     worst = np.zeros(len(p_world))
@@ -110,12 +111,11 @@ def focal_scan(pairs: list[PairMatches], camera: dict, scales=SCALES) -> FocalSc
     """The pairs' matches scored through ``camera`` (truth.json's: fx, fy, cx, cy, k1, k2 in
     OpenCV's pixel convention) with fx and fy times each of ``scales``. Only matches within
     MAX_ERROR_PX at every scale count, so each scale is scored on the same matches."""
-    dist = np.array([camera["k1"], camera["k2"], 0.0, 0.0])
+    true = CameraModel(**camera)
     errors = []
     for s in scales:
-        K = np.array([[camera["fx"] * s, 0.0, camera["cx"]],
-                      [0.0, camera["fy"] * s, camera["cy"]], [0.0, 0.0, 1.0]])
-        errors.append(np.concatenate([_errors_px(p, K, dist) for p in pairs]) if pairs
+        scaled = true.replace(fx=true.fx * s, fy=true.fy * s)
+        errors.append(np.concatenate([_errors_px(p, scaled) for p in pairs]) if pairs
                       else np.zeros(0))
     errors = np.array(errors)
     kept = np.all(errors < MAX_ERROR_PX, axis=0)
