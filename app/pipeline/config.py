@@ -283,6 +283,9 @@ class PipelineConfig(BaseModel):
     calib_stage2_probe: float = Field(
         0.0, ge=0.0, lt=0.5, description="after stage 2, hold the camera at fx, fy times 1 - "
         "and 1 + this; when one fits the window better, run stage 2 again from it (0: never)")
+    calib_stage2_probe_points: int = Field(
+        1500, ge=100, description="points of the window the probe's three deciding fits see "
+        "(fewer: faster; the move itself adjusts every point)")
     ba_max_refinements: int = Field(
         1, description="times COLMAP's mapper re-runs a bundle adjustment after dropping outliers")
 

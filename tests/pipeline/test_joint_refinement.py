@@ -222,8 +222,15 @@ def test_the_stage_2_probe_steps_towards_a_camera_the_window_fits_better_and_not
     assert moves == [1.03, 1.03, 1.03] and len(refits) == 3
     fx = next(iter(out.cameras.values())).params[0]
     assert fx == pytest.approx(TRUE_PARAMS[0] * 0.9 * 1.03 ** 3, rel=1e-9)
+    # Deciding on a quarter of the points moves the same way, and the move adjusts all of them.
+    n_points = stuck.num_points3D()
+    out, moves, _ = probe_focal(pycolmap, stuck, step=0.03, max_moves=1, max_points=60,
+                                refine=lambda r: None, threads=1)
+    assert moves == [1.03] and out.num_points3D() == n_points > 200
     # At the truth neither probe fits better: nothing moves and stage 2 does not run again.
-    refits.clear()
-    out, moves, std = probe_focal(pycolmap, rec, step=0.03, max_moves=3,
-                                  refine=lambda r: refits.append(r), threads=1)
-    assert moves == [] and refits == [] and std is None and out is rec
+    for max_points in (1500, 60):
+        refits.clear()
+        out, moves, std = probe_focal(pycolmap, rec, step=0.03, max_moves=3,
+                                      refine=lambda r: refits.append(r), max_points=max_points,
+                                      threads=1)
+        assert moves == [] and refits == [] and std is None and out is rec

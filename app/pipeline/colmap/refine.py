@@ -275,20 +275,46 @@ def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: i
 
 
 def _errors_px(rec) -> np.ndarray:
-    """Every observation's reprojection error (px; nan where the point is behind the camera)."""
-    out = []
-    for point in rec.points3D.values():
-        for el in point.track.elements:
-            image = rec.image(el.image_id)
-            xy = image.project_point(point.xyz)
-            out.append(np.nan if xy is None
-                       else float(np.linalg.norm(xy - image.points2D[el.point2D_idx].xy)))
-    return np.asarray(out)
+    """Every observation's reprojection error (px; nan where the point is behind the camera),
+    projected image by image in one call (a call per observation took 1 s on turn-70's window)."""
+    xyz = {point_id: point.xyz for point_id, point in rec.points3D.items()}
+    out = [np.zeros(0)]
+    for image in rec.images.values():
+        observed = image.get_observation_points2D() if image.has_pose else []
+        if not observed:
+            continue
+        xy_observed = np.array([p.xy for p in observed])  # (M, 2)
+        p_model = np.array([xyz[p.point3D_id] for p in observed])  # (M, 3)
+        T_cam_model = np.asarray(image.cam_from_world().matrix())  # (3, 4)
+        p_cam = p_model @ T_cam_model[:, :3].T + T_cam_model[:, 3]
+        xy = rec.camera(image.camera_id).img_from_cam(p_cam)  # nan rows behind the camera
+        out.append(np.linalg.norm(xy - xy_observed, axis=1))
+    return np.concatenate(out)
+
+
+def _thinned(pycolmap, rec, max_points: int):
+    """A copy of ``rec`` with at most ``max_points`` of its points, evenly spread over their
+    ids (COLMAP numbers points as it triangulates them, so every part of the window keeps some)."""
+    out = pycolmap.Reconstruction(rec)
+    ids = sorted(out.point3D_ids())
+    if len(ids) > max_points:
+        keep = {ids[i] for i in np.linspace(0, len(ids) - 1, max_points).round().astype(int)}
+        for point_id in ids:
+            if point_id not in keep:
+                out.delete_point3D(point_id)
+    return out
+
+
+def _cauchy_cost(rec) -> float:
+    """Stage 2's robust cost (Cauchy, 1 px) of ``rec``'s observations; a point behind its
+    camera counts as far off."""
+    errors = _errors_px(rec)
+    return float(np.sum(np.log1p(np.nan_to_num(errors, nan=1e6) ** 2)))
 
 
 def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
-                refine: Callable[[object], np.ndarray], max_iterations: int = 200,
-                function_tolerance: float = 1e-6,
+                refine: Callable[[object], np.ndarray], max_points: int = 1500,
+                max_iterations: int = 200, function_tolerance: float = 1e-6,
                 threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
     """Stage 2 ends at the minimum of the structure stage 1 built; from a stage 1 13 % off that
     was 28 % short on a tuning window whose images fit the truth far better
@@ -296,23 +322,30 @@ def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
     1 - ``step`` and 1 + ``step`` and at itself, each in a bundle adjustment of poses and points
     (Cauchy, 1 px; stopping as stage 2's do at ``function_tolerance``: COLMAP's default 0 ran
     each fit to 200 iterations, 6 s on tuning c0846); when a probe costs less than the camera
-    itself, ``refine`` (stage 2) runs again from that adjusted copy. At most ``max_moves`` times.
-    Returns the reconstruction, the scales moved by, and the last ``refine``'s result (None if it
-    never ran)."""
+    itself, ``refine`` (stage 2) runs again from the whole window adjusted to that camera. At
+    most ``max_moves`` times.
+
+    The three fits that decide see ``max_points`` of the window's points (``_thinned``): on
+    turn-70's 7849 they cost 10 s, on 1500 under 2 s, and the ordering held (the held camera's
+    extra cost is a sum over points, so it shrinks with them but keeps its sign;
+    bench/results/2026-11-30-cheaper-probe.md). Returns the reconstruction, the scales moved by,
+    and the last ``refine``'s result (None if it never ran)."""
     moves: list[float] = []
     std = None
     for _ in range(max_moves):
         own = np.asarray(next(iter(rec.cameras.values())).params, dtype=float)
+        sample = _thinned(pycolmap, rec, max_points)
         fits = []
         for scale in (1.0, 1.0 - step, 1.0 + step):
             params = own.copy()
             params[:2] *= scale
-            held = _held_fit(pycolmap, rec, params, max_iterations, threads, function_tolerance)
-            errors = _errors_px(held)
-            fits.append((float(np.sum(np.log1p(errors[np.isfinite(errors)] ** 2))), scale, held))
-        cost, scale, held = min(fits, key=lambda f: f[0])
+            held = _held_fit(pycolmap, sample, params, max_iterations, threads,
+                             function_tolerance)
+            fits.append((_cauchy_cost(held), scale, params))
+        _, scale, params = min(fits, key=lambda f: f[0])
         if scale == 1.0:
             break
-        rec, std = held, refine(held)
+        rec = _held_fit(pycolmap, rec, params, max_iterations, threads, function_tolerance)
+        std = refine(rec)
         moves.append(scale)
     return rec, moves, std

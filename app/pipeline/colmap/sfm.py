@@ -440,9 +440,9 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         std = stage2(rec)
         if job.mapping.stage2_probe > 0:
             unprobed = camera_model(next(iter(rec.cameras.values())))
-            rec, moves, probed_std = probe_focal(pycolmap, rec, step=job.mapping.stage2_probe,
-                                                 max_moves=3, refine=stage2,
-                                                 threads=job.process.threads)
+            rec, moves, probed_std = probe_focal(
+                pycolmap, rec, step=job.mapping.stage2_probe, max_moves=3, refine=stage2,
+                max_points=job.mapping.stage2_probe_points, threads=job.process.threads)
             std = std if probed_std is None else probed_std
         if job.mapping.split_spread:
             spread = split_spread(pycolmap, rec,

@@ -139,7 +139,8 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
                           split_spread=cfg.calib_split_spread,
                           stage2_max_iterations=cfg.calib_stage2_max_iterations,
                           stage2_refits=cfg.calib_stage2_refits,
-                          stage2_probe=cfg.calib_stage2_probe)
+                          stage2_probe=cfg.calib_stage2_probe,
+                          stage2_probe_points=cfg.calib_stage2_probe_points)
 
 
 def _process(cfg: PipelineConfig) -> ProcessOptions:
