@@ -306,10 +306,12 @@ def _thinned(pycolmap, rec, max_points: int):
 
 
 def _cauchy_cost(rec) -> float:
-    """Stage 2's robust cost (Cauchy, 1 px) of ``rec``'s observations; a point behind its
-    camera counts as far off."""
+    """Stage 2's robust cost (Cauchy, 1 px) of ``rec``'s observations in front of their camera.
+    Counting the few behind it as far off (27.6 each) hid the way out of tuning c0888's stuck
+    structure on 1500 points: 5 such points at fx x 0.97 against 1 at its own camera
+    (bench/results/2026-11-30-cheaper-probe.md)."""
     errors = _errors_px(rec)
-    return float(np.sum(np.log1p(np.nan_to_num(errors, nan=1e6) ** 2)))
+    return float(np.sum(np.log1p(errors[np.isfinite(errors)] ** 2)))
 
 
 def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
