@@ -277,11 +277,11 @@ class PipelineConfig(BaseModel):
         0, ge=0, description="bundle adjustments stage 2 runs again after it drops its "
         "outlying observations (bench/results/2026-11-29-stage2-refit.md)")
     # A stage 1 far off leaves a structure whose own minimum stage 2 stops in (check c0877,
-    # -13.1 %); at 0.03 the probe found c0877's way out and moved no tuning window, but its three
-    # held fits per candidate window took turn-70's calibrate from 11.0 to 15.9 s
-    # (bench/results/2026-11-30-stage2-probe.md): off until they cost less.
+    # -13.1 %; tuning c0888 from a stage 1 held 13 % short, -28.4 %); the probe found both ways
+    # out and moved no tuning window. Its deciding fits on 1500 points cost less than the quick
+    # bench's noise (bench/results/2026-11-30-stage2-probe.md, -cheaper-probe.md).
     calib_stage2_probe: float = Field(
-        0.0, ge=0.0, lt=0.5, description="after stage 2, hold the camera at fx, fy times 1 - "
+        0.03, ge=0.0, lt=0.5, description="after stage 2, hold the camera at fx, fy times 1 - "
         "and 1 + this; when one fits the window better, run stage 2 again from it (0: never)")
     calib_stage2_probe_points: int = Field(
         1500, ge=100, description="points of the window the probe's three deciding fits see "
