@@ -39,7 +39,7 @@ class MappingOptions:
     split_spread: bool = False  # stage 2 again on parts of the points (``refine.split_spread``)
     stage2_max_iterations: int = 1000  # Ceres iterations each of stage 2's adjustments may take
     stage2_refits: int = 0  # stage 2: adjustments again after its last filter
-    stage2_probe: float = 0.0  # stage 2 again from fx x (1 +- this) when it fits better (0: off)
+    stage2_probe: float = 0.03  # stage 2 again from fx x (1 +- this) when it fits better (0: off)
     stage2_probe_points: int = 1500  # points the probe's deciding fits see
 
 
