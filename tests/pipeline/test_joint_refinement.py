@@ -234,3 +234,27 @@ def test_the_stage_2_probe_steps_towards_a_camera_the_window_fits_better_and_not
                                       refine=lambda r: refits.append(r), max_points=max_points,
                                       threads=1)
         assert moves == [] and refits == [] and std is None and out is rec
+
+
+def test_the_probe_s_cost_leaves_out_points_pushed_behind_their_camera():
+    pycolmap = pytest.importorskip("pycolmap")
+    from app.pipeline.colmap.refine import _cauchy_cost, _errors_px
+
+    rng = np.random.default_rng(5)
+    rec = _window(pycolmap, rng, 0.0, noise_px=0.5)
+    before = _cauchy_cost(rec)
+    assert before == pytest.approx(np.sum(np.log1p(_errors_px(rec) ** 2)))
+    # Mirror one point through the first camera's centre: behind it there, and behind or far
+    # off in the others that see it.
+    point_id, point = next(iter(rec.points3D.items()))
+    image = rec.image(point.track.elements[0].image_id)
+    T_cam_world = np.asarray(image.cam_from_world().matrix())
+    centre_world = -T_cam_world[:, :3].T @ T_cam_world[:, 3]
+    point.xyz = 2 * centre_world - point.xyz
+    errors = _errors_px(rec)
+    n_behind = int(np.isnan(errors).sum())
+    assert n_behind >= 1
+    # A held fit must not gain by pushing a point behind a camera: such an observation costs
+    # nothing, its in-front observations cost what they cost (tuning c0888's lesson).
+    assert _cauchy_cost(rec) == pytest.approx(np.sum(np.log1p(errors[~np.isnan(errors)] ** 2)))
+    assert np.isfinite(_cauchy_cost(rec))
