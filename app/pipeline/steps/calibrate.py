@@ -33,6 +33,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from app.pipeline.geometry.path_scale import scale_spread
 from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
 from app.pipeline.steps.turns import TurnWindow
@@ -56,13 +57,15 @@ class CalibrationWindow:
     whose RDP vertex is frame ``vertex``. ``gps_rotation_deg``: how far the GPS track turns over
     the frames ``gps_frame_idx`` of them (``turns.chord_rotation_deg``; None: all),
     ``gps_rotation_std_deg`` its standard deviation from the GPS noise; NaN where unknown
-    (``plan.gps_rotation``)."""
+    (``plan.gps_rotation``). ``gps_xyz_m`` (K, 3): the GPS positions of ``frame_idx``, metric
+    frame (None: unknown)."""
 
     frame_idx: np.ndarray
     vertex: int
     gps_rotation_deg: float = float("nan")
     gps_rotation_std_deg: float = float("nan")
     gps_frame_idx: np.ndarray | None = None
+    gps_xyz_m: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -270,6 +273,27 @@ def _turns_beyond_gps(window: CalibrationWindow, rotation: float,
     return None
 
 
+def _path_scale_spread(window: CalibrationWindow, res: WindowResult,
+                       frame_names: Sequence[str] | None) -> float:
+    """``path_scale.scale_spread`` of the registered cameras against the window's GPS (NaN where
+    either is missing)."""
+    if window.gps_xyz_m is None or frame_names is None or res.error:
+        return float("nan")
+    at = {frame_names[i]: k for k, i in enumerate(window.frame_idx)}
+    rows = sorted((at[name], j) for j, name in enumerate(res.image_names) if name in at)
+    if not rows:
+        return float("nan")
+    c_model = res.T_model_cam[[j for _, j in rows], :3, 3]
+    return scale_spread(c_model, window.gps_xyz_m[[k for k, _ in rows]])
+
+
+def _path_off_scale(spread: float, cfg: PipelineConfig) -> str | None:
+    if cfg.calib_max_path_scale_spread and spread > cfg.calib_max_path_scale_spread:
+        return (f"no one scale fits its path: its stretches' scales against the GPS differ "
+                f"{spread:.1f}x (> {cfg.calib_max_path_scale_spread:g})")
+    return None
+
+
 def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
     return bool(cfg.calib_max_focal_std) and res.focal_std_rel > cfg.calib_max_focal_std
 
@@ -374,9 +398,10 @@ def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     return text
 
 
-def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) -> str:
+def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float,
+           path_spread: float = float("nan")) -> str:
     """One candidate's line; ``gps_turn_deg``: its reconstruction's turn over the frames the GPS
-    measured (``_rotation_where_gps_measured``)."""
+    measured (``_rotation_where_gps_measured``), ``path_spread`` its ``_path_scale_spread``."""
     if res.error:
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
@@ -401,6 +426,8 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float) ->
         gps = (f" (GPS {window.gps_rotation_deg:.0f} ± {window.gps_rotation_std_deg:.1f} over "
                f"{len(window.gps_frame_idx)} of its frames, where it turns "
                f"{gps_turn_deg:.1f})")
+    if np.isfinite(path_spread):
+        gps += f", path scale x {path_spread:.2f} along it (GPS)"
     return (f"{window.label}{start}: {len(res.image_names)}/{res.n_input} registered, "
             f"{res.reprojection_error_px:.2f} px, fx {res.camera.fx:.1f}{spread}, "
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
@@ -501,9 +528,11 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
             on_candidate(k, len(windows), window)
         res = map_window(window, start)
         gps_turn_deg = _rotation_where_gps_measured(window, res, frame_names)
+        path_spread = _path_scale_spread(window, res, frame_names)
         why = (judge_window(res, cfg, agreement_may_follow=True)
-               or _turns_beyond_gps(window, gps_turn_deg, cfg))
-        trial = _trial(window, res, gps_turn_deg)
+               or _turns_beyond_gps(window, gps_turn_deg, cfg)
+               or _path_off_scale(path_spread, cfg))
+        trial = _trial(window, res, gps_turn_deg, path_spread)
         log.info("calibration candidate %s: %s", window.label,
                  why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
         if why:

@@ -163,8 +163,9 @@ def gps_sigma_m(journey: Journey) -> float | None:
 
 def gps_rotation(windows: list[CalibrationWindow], xyz_gps: np.ndarray, sigma_m: float | None,
                  config: PipelineConfig) -> list[CalibrationWindow]:
-    """``windows`` with how far the raw GPS track ``xyz_gps`` (N, 3) turns over each
-    (``turns.chord_rotation_deg``) and that figure's standard deviation: the heading of a chord
+    """``windows`` with their frames' GPS positions and how far the raw GPS track ``xyz_gps``
+    (N, 3) turns over each (``turns.chord_rotation_deg``) and that figure's standard
+    deviation: the heading of a chord
     of length L whose ends scatter by ``sigma_m`` across it has sigma sqrt(2) sigma / L, the
     difference of two such, 2 sigma / L (radians). Raw, not smoothed: smoothing spreads a sharp
     turn, and phone-grade noise shows in the deviation instead.
@@ -176,7 +177,9 @@ def gps_rotation(windows: list[CalibrationWindow], xyz_gps: np.ndarray, sigma_m:
     chords saw 69, and the right calibration was refused (c0392 of corpus seed 384)."""
     if not windows:
         return windows
-    xy_m = np.asarray(xyz_gps, dtype=float)[:, :2]
+    xyz_gps = np.asarray(xyz_gps, dtype=float)
+    windows = [replace(w, gps_xyz_m=xyz_gps[w.frame_idx]) for w in windows]
+    xy_m = xyz_gps[:, :2]
     s_m = turns.track_length_m(xy_m, tolerance_m=config.rdp_tolerance_m)
     std_deg = (float(np.degrees(2.0 * sigma_m / config.calib_gps_chord_m))
                if sigma_m is not None else float("nan"))
