@@ -221,10 +221,6 @@ class PipelineConfig(BaseModel):
         "heading change (from the fixes' white noise and the chord length)")
     calib_gps_rotation_min_slack_deg: float = Field(
         10.0, description="least slack (degrees) of the GPS rotation check")
-    calib_max_path_scale_spread: float = Field(
-        0.0, ge=0.0, description="refuse a candidate whose cameras' path, cut into three "
-        "stretches of equal GPS road, needs scales against the GPS differing by more than this "
-        "factor (a partly collapsed reconstruction; 0: never, the figure is still reported)")
     # Tuning-half U-turns at 20 Hz (c0462, c0554; 2026-11-28) were refused with every window of
     # one road agreeing within 0.7 % of the lens at 0.37-0.41 px. Chosen on the records of
     # 2026-11-26..28 (bench/results/2026-11-28-shared-road.md): agreeing pairs of one road, each

@@ -510,7 +510,7 @@ def test_by_default_a_stored_camera_is_not_put_to_the_window():
     assert cal.source == "self" and cal.camera == TRUE
 
 
-def test_a_window_whose_path_needs_two_scales_against_the_gps_is_refused_when_asked():
+def test_each_candidate_reports_whether_one_scale_fits_its_path_against_the_gps():
     from dataclasses import replace
 
     from app.pipeline.steps.calibrate import self_calibrate
@@ -519,18 +519,21 @@ def test_a_window_whose_path_needs_two_scales_against_the_gps_is_refused_when_as
     xyz_gps_m = np.column_stack([np.arange(60) * 1.5, np.zeros(60), np.zeros(60)])
     windows = [replace(w, gps_xyz_m=xyz_gps_m[w.frame_idx])
                for w in _windows_with_gps(2, 80.0, 5.0)]
-    collapsed, whole = _window(WRONG), _window(TRUE)
+    collapsed, whole = _window(WRONG, error_px=0.2), _window(TRUE)
     whole.T_model_cam[:, :3, 3] = 0.2 * xyz_gps_m[20:50]
     whole.image_names[:] = names[20:50]
-    # The first half of the first window barely moves: 1/40 of the rest's scale.
+    # The first half of the first window barely moves: 1/40 of the rest's scale (tuning c0838).
     x = np.r_[np.arange(15) / 40.0, 15 / 40.0 + np.arange(15) - 14]
     collapsed.T_model_cam[:, :3, 3] = np.column_stack([x, np.zeros(30), np.zeros(30)])
+    collapsed.image_names[:] = names[:30]
     results = [collapsed, whole]
-    for config, expected in ((PipelineConfig(), WRONG),
-                             (PipelineConfig(calib_max_path_scale_spread=3.0), TRUE)):
-        trials: list[str] = []
-        cal = self_calibrate(windows, config, lambda w, start: results[_index(windows, w)],
-                             width=1242, height=375, frame_names=names, trials=trials)
-        assert cal.camera == expected, trials
-    assert "path scale x 1.00 along it (GPS)" in trials[1]
-    assert "refused, no one scale fits its path" in trials[0], trials
+    trials: list[str] = []
+    cal = self_calibrate(windows, PipelineConfig(), lambda w, start: results[_index(windows, w)],
+                         width=1242, height=375, frame_names=names, trials=trials)
+    # Reported, not judged: as a gate it fixed one tuning journey of 53.
+    assert cal.camera == WRONG and len(trials) == 1 and "accepted" in trials[0], trials
+    assert float(trials[0].split("path scale x ")[1].split()[0]) > 10.0, trials[0]
+    trials.clear()
+    self_calibrate(windows[1:], PipelineConfig(), lambda w, start: whole, width=1242,
+                   height=375, frame_names=names, trials=trials)
+    assert "path scale x 1.00 along it (GPS)" in trials[0], trials
