@@ -166,8 +166,8 @@ def gps_rotation(windows: list[CalibrationWindow], xyz_gps: np.ndarray, sigma_m:
     """``windows`` with their frames' GPS positions and how far the raw GPS track ``xyz_gps``
     (N, 3) turns over each (``turns.chord_rotation_deg``) and that figure's standard deviation:
     the heading of a chord of length L whose ends scatter by ``sigma_m`` across it has sigma
-    sqrt(2) sigma / L, the difference of two such, 2 sigma / L (radians). Raw, not smoothed: smoothing spreads a sharp
-    turn, and phone-grade noise shows in the deviation instead.
+    sqrt(2) sigma / L, the difference of two such, 2 sigma / L (radians). Raw, not smoothed:
+    smoothing spreads a sharp turn, and phone-grade noise shows in the deviation instead.
 
     Only frames whose chord lies on the track are measured (``gps_frame_idx``), and the check
     compares the reconstruction over the same frames. Within half a chord of the journey's
