@@ -246,7 +246,7 @@ def test_the_probe_s_cost_leaves_out_points_pushed_behind_their_camera():
     assert before == pytest.approx(np.sum(np.log1p(_errors_px(rec) ** 2)))
     # Mirror one point through the first camera's centre: behind it there, and behind or far
     # off in the others that see it.
-    point_id, point = next(iter(rec.points3D.items()))
+    point = next(iter(rec.points3D.values()))
     image = rec.image(point.track.elements[0].image_id)
     T_cam_world = np.asarray(image.cam_from_world().matrix())
     centre_world = -T_cam_world[:, :3].T @ T_cam_world[:, 3]

@@ -237,6 +237,14 @@ def judge_window(res: WindowResult, cfg: PipelineConfig, *,
     return _implausible(res.camera)
 
 
+def _registered(frame_idx: np.ndarray, res: WindowResult,
+                frame_names: Sequence[str]) -> list[tuple[int, int]]:
+    """(k, j) for each of the journey frames ``frame_idx`` (named by ``frame_names``) that
+    ``res`` registered: its place k in ``frame_idx`` and j in ``res``, in ``res``'s order."""
+    at = {frame_names[i]: k for k, i in enumerate(frame_idx)}
+    return [(at[name], j) for j, name in enumerate(res.image_names) if name in at]
+
+
 def _rotation_where_gps_measured(window: CalibrationWindow, res: WindowResult,
                                 frame_names: Sequence[str] | None) -> float:
     """The reconstruction's rotation (deg) over the frames the GPS measured
@@ -244,9 +252,8 @@ def _rotation_where_gps_measured(window: CalibrationWindow, res: WindowResult,
     window names none."""
     T_model_cam = res.T_model_cam
     if window.gps_frame_idx is not None and frame_names is not None:
-        measured = {frame_names[i] for i in window.gps_frame_idx}
-        T_model_cam = T_model_cam[[k for k, name in enumerate(res.image_names)
-                                   if name in measured]]
+        rows = _registered(window.gps_frame_idx, res, frame_names)
+        T_model_cam = T_model_cam[[j for _, j in rows]]
     return rotation_covered_deg(T_model_cam)
 
 
@@ -280,8 +287,7 @@ def _path_scale_spread(window: CalibrationWindow, res: WindowResult,
     (c0838, fx +1.87 -> +0.33 %) and no other (bench/results/2026-11-30-path-scale.md)."""
     if window.gps_xyz_m is None or frame_names is None or res.error:
         return float("nan")
-    at = {frame_names[i]: k for k, i in enumerate(window.frame_idx)}
-    rows = sorted((at[name], j) for j, name in enumerate(res.image_names) if name in at)
+    rows = sorted(_registered(window.frame_idx, res, frame_names))  # in travel order
     if not rows:
         return float("nan")
     c_model = res.T_model_cam[[j for _, j in rows], :3, 3]
