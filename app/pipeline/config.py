@@ -237,7 +237,9 @@ class PipelineConfig(BaseModel):
         "disagree (colmap.refine.split_spread: six more stage-2 runs, 6-10 s a window)")
     # Again on 2026-11-30 (29 tuning journeys, bench/results/2026-11-30-joint-again.md): fx p90
     # 0.87 -> 0.56 %, fy p90 1.00 -> 0.71 %, k1 p90 27 -> 12 %, but the same 21/28 within every
-    # bar, and the calibrate stage 1.5x as long (c0856: mostly the partner's SIFT): off for time.
+    # bar, and the calibrate stage 1.5x as long (c0856: mostly the partner's SIFT). On the check
+    # half it pulled two right cameras 12-16 % off, where the partner's held mapping did not fit
+    # the camera (joint fits at 0.41-0.46 px, every tuning one at most 0.34 px): off.
     calib_joint: bool = Field(
         False, description="after a window is accepted, map one more (another turn first) with "
         "its camera held and refine all intrinsics over both windows at once")
