@@ -537,3 +537,59 @@ def test_each_candidate_reports_whether_one_scale_fits_its_path_against_the_gps(
     self_calibrate(windows[1:], PipelineConfig(), lambda w, start: whole, width=1242,
                    height=375, frame_names=names, trials=trials)
     assert "path scale x 1.00 along it (GPS)" in trials[0], trials
+
+
+def _search_with_whole_curve(accepted: WindowResult, longer: WindowResult, *, knob_deg: float):
+    """The search over one ordinary window and its turn's whole-curve window; returns
+    (calibration, windows mapped as (index, start camera))."""
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+
+    windows = [CalibrationWindow(np.arange(30), 40),
+               CalibrationWindow(np.arange(0, 100, 3), 40, whole_curve=True)]
+    mapped: list[tuple[int, CameraModel]] = []
+
+    def map_window(window, start):
+        k = _index(windows, window)
+        mapped.append((k, start))
+        return [accepted, longer][k]
+
+    trials: list[str] = []
+    cal = self_calibrate(windows, PipelineConfig(calib_extend_below_deg=knob_deg), map_window,
+                         width=1242, height=375, trials=trials)
+    return cal, mapped, trials
+
+
+def test_a_window_that_turned_little_is_extended_over_its_whole_curve():
+    # A 36 m window sees 35-60 deg of a wide curve; accepted calibrations are good to 1 % 90 % of
+    # the time past 70 deg and 80 % under it (records of 592 journeys, 2026-11-30).
+    off = CameraModel(1242, 375, 968.0, 962.0, 696.0, 242.0, -0.372, 0.16)  # 0.9 % long
+    cal, mapped, trials = _search_with_whole_curve(
+        _window(off, yaw_deg=50.0), _window(TRUE, yaw_deg=140.0), knob_deg=70.0)
+    assert [k for k, _ in mapped] == [0, 1]
+    assert mapped[1][1].fx == pytest.approx(0.5 * (off.fx + off.fy))  # from the accepted camera
+    assert cal.camera == TRUE and cal.evidence == "reprojection+extended"
+    assert cal.single_window == off and cal.windows == [(0, 100)]
+    assert cal.rotation_deg == pytest.approx(140.0, abs=1.0)
+    assert trials[-1].startswith("extension frames 0-99: 30/30 registered") and "taken" in trials[-1]
+
+
+@pytest.mark.parametrize("longer, why", [
+    (_window(WRONG, yaw_deg=140.0), "disagrees with frames 0-29"),
+    (_window(TRUE, yaw_deg=140.0, error_px=2.5), "reprojection error 2.50 px"),
+    (_window(TRUE, yaw_deg=45.0), "turns no further than frames 0-29"),
+])
+def test_an_extension_that_does_not_fit_turn_further_or_agree_leaves_the_accepted_camera(
+        longer, why):
+    cal, mapped, trials = _search_with_whole_curve(_window(TRUE, yaw_deg=50.0), longer,
+                                                   knob_deg=70.0)
+    assert [k for k, _ in mapped] == [0, 1]
+    assert cal.camera == TRUE and cal.evidence == "reprojection"
+    assert cal.windows == [(0, 30)]
+    assert f"not used, {why}" in trials[-1]
+
+
+def test_a_window_that_turned_enough_or_the_default_maps_nothing_more():
+    for yaw_deg, knob_deg in [(80.0, 70.0), (50.0, 0.0)]:
+        cal, mapped, _ = _search_with_whole_curve(
+            _window(TRUE, yaw_deg=yaw_deg), _window(WRONG, yaw_deg=140.0), knob_deg=knob_deg)
+        assert [k for k, _ in mapped] == [0] and cal.evidence == "reprojection"
