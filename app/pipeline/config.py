@@ -60,13 +60,6 @@ class PipelineConfig(BaseModel):
         "spanning the whole curve plus calib_window_m, up to this many metres (0: none)")
     calib_long_window_images: int = Field(
         33, description="images a whole-curve candidate maps (calib_long_window_max_m)")
-    # An accepted window's calibration is good to 1 % 90 % of the time when it turned 70 deg or
-    # more, 80 % at 45-70 deg and 38 % under 45 (592 journeys' records, 2026-11-30), and a
-    # 36 m window sees 35-60 deg of a wide curve.
-    calib_extend_below_deg: float = Field(
-        0.0, description="when the accepted window turned less than this, map its turn's "
-        "whole-curve window from the accepted camera and take that camera when it fits and agrees "
-        "(0: off)")
     # 0.5 on the tuning half: a 180 deg U-turn at 17 m/s calibrated (13/22 registered before),
     # fx p90 1.26 -> 1.03 %, k1 p90 11 -> 7 %; one more journey within every bar.
     calib_rotation_share: float = Field(

@@ -27,7 +27,6 @@ else is refused with every candidate's reason.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
@@ -67,7 +66,6 @@ class CalibrationWindow:
     gps_rotation_std_deg: float = float("nan")
     gps_frame_idx: np.ndarray | None = None
     gps_xyz_m: np.ndarray | None = None
-    whole_curve: bool = False  # spans the whole curve (``_whole_curve_windows``)
 
     @property
     def label(self) -> str:
@@ -144,7 +142,7 @@ def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.
         window = _new_window(s_m, rot_deg, s_m[turn.vertex] - 0.5 * span_m, span_m,
                              cfg.calib_long_window_images, turn.vertex, cfg, seen)
         if window is not None:
-            out.append(replace(window, whole_curve=True))
+            out.append(window)
     return out
 
 
@@ -498,40 +496,6 @@ def _refined_jointly(windows: list[CalibrationWindow], window: CalibrationWindow
     return joint, partner
 
 
-def _extended(windows: list[CalibrationWindow], window: CalibrationWindow,
-              accepted: WindowResult, cfg: PipelineConfig,
-              map_window: Callable[[CalibrationWindow, CameraModel], WindowResult],
-              frame_names: Sequence[str] | None, trials: list[str]
-              ) -> tuple[CalibrationWindow, WindowResult] | None:
-    """The whole-curve window of the accepted ``window``'s turn, mapped from the accepted camera,
-    when the accepted window turned less than ``calib_extend_below_deg`` and the longer one fits
-    (``judge_window``, the GPS turn check), turns further and agrees with it (``_agree``); else
-    None. More rotation pins the focal length better; starting from the accepted camera and
-    having to agree with it keeps the longer window out of the wrong minima it fell into when
-    mapped from the wide guess (2026-11-25-calib-windows)."""
-    rotation = rotation_covered_deg(accepted.T_model_cam)
-    if rotation >= cfg.calib_extend_below_deg or window.whole_curve:
-        return None
-    longer = next((w for w in windows if w.whole_curve and w.vertex == window.vertex), None)
-    if longer is None:
-        trials.append(f"extension: {window.label} turned {rotation:.0f} deg; its turn has no "
-                      "whole-curve window")
-        return None
-    t0 = time.perf_counter()
-    res = map_window(longer, seeded_start(accepted.camera))
-    mapped_s = time.perf_counter() - t0
-    gps_turn_deg = _rotation_where_gps_measured(longer, res, frame_names)
-    trial = _trial(longer, res, gps_turn_deg, _path_scale_spread(longer, res, frame_names))
-    why = judge_window(res, cfg) or _turns_beyond_gps(longer, gps_turn_deg, cfg)
-    if why is None and rotation_covered_deg(res.T_model_cam) <= rotation:
-        why = f"turns no further than {window.label} ({rotation:.0f} deg)"
-    if why is None and not _agree(accepted.camera, res.camera, cfg):
-        why = f"disagrees with {window.label} (fx {accepted.camera.fx:.1f})"
-    log.info("calibration extension %s: %s", longer.label, why or "taken")
-    trials.append(f"extension {trial}, {mapped_s:.1f} s: {'not used, ' + why if why else 'taken'}")
-    return None if why else (longer, res)
-
-
 def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    map_window: Callable[[CalibrationWindow, CameraModel], WindowResult], *,
                    hint: CameraModel | None = None, width: int, height: int,
@@ -619,12 +583,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
                             + "; ".join(reasons))
     window, accepted = min(chosen, key=lambda g: g[1].reprojection_error_px)
-    best, used, turned = accepted, [window], accepted
-    if cfg.calib_extend_below_deg > 0:
-        if extended := _extended(windows, window, accepted, cfg, map_window, frame_names,
-                                 trials):
-            used, best, turned = [extended[0]], extended[1], extended[1]
-            evidence += "+extended"
+    best, used = accepted, [window]
     if cfg.calib_joint and refine_jointly is not None:
         joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
         if partner is not None:
@@ -632,7 +591,7 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
     calib = Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
                         n_images=best.n_input, n_registered=len(best.image_names),
                         reprojection_error_px=best.reprojection_error_px,
-                        rotation_deg=rotation_covered_deg(turned.T_model_cam),
+                        rotation_deg=rotation_covered_deg(accepted.T_model_cam),
                         windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
                         evidence=evidence, single_window=accepted.camera,
                         focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
