@@ -537,3 +537,60 @@ def test_each_candidate_reports_whether_one_scale_fits_its_path_against_the_gps(
     self_calibrate(windows[1:], PipelineConfig(), lambda w, start: whole, width=1242,
                    height=375, frame_names=names, trials=trials)
     assert "path scale x 1.00 along it (GPS)" in trials[0], trials
+
+
+def _search_mapped_again(first: WindowResult, again: WindowResult, *, knob: float = 0.10):
+    """The search over one window whose mapping ``first`` is accepted; the window mapped again
+    gives ``again``. Returns (calibration, start cameras each mapping got, trial lines)."""
+    from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+
+    window = CalibrationWindow(np.arange(30), 40)
+    starts: list[CameraModel] = []
+
+    def map_window(w, start):
+        starts.append(start)
+        return [first, again][len(starts) - 1]
+
+    trials: list[str] = []
+    cal = self_calibrate([window], PipelineConfig(calib_remap_moved=knob), map_window,
+                         width=1242, height=375, trials=trials)
+    return cal, starts, trials
+
+
+SHORT = CameraModel(1242, 375, 935.0, 929.0, 690.0, 240.0, -0.35, 0.14)  # 2.5 % short
+
+
+def _from_stage1(camera: CameraModel, stage1_fx: float, error_px: float) -> WindowResult:
+    res = _window(camera, error_px=error_px)
+    res.stage1_camera = camera.replace(fx=stage1_fx, fy=stage1_fx, cx=621.0, cy=187.5)
+    return res
+
+
+def test_a_window_stage_2_moved_far_is_mapped_again_and_the_better_fit_taken():
+    # Tuning c0962: stage 1 15.7 % short, stage 2 stuck at -2.54 % (0.205 px); mapped from the
+    # true focal length, +0.09 % at 0.180 px (bench/results/2026-11-30-c0962-start.md).
+    cal, starts, trials = _search_mapped_again(_from_stage1(SHORT, 790.0, 0.205),
+                                               _from_stage1(TRUE, 930.0, 0.184))
+    assert len(starts) == 2
+    assert starts[1].fx == pytest.approx(0.5 * (SHORT.fx + SHORT.fy)) and starts[1].k1 == SHORT.k1
+    assert cal.camera == TRUE and cal.evidence == "reprojection+mapped again"
+    assert cal.single_window == SHORT and cal.stage1.fx == 790.0
+    assert "0.184 px against 0.205" in trials[-1] and trials[-1].endswith("taken")
+
+
+@pytest.mark.parametrize("again, why", [
+    (_from_stage1(TRUE, 930.0, 0.21), "fits no better (0.210 px against 0.205)"),
+    (_window(TRUE, error_px=0.1, registered=20), "registered 20 frames, fewer than 30"),
+    (_window(WRONG, error_px=0.1), "is further from 935.0 than stage 2 moved from stage 1"),
+])
+def test_a_mapping_again_that_fits_no_better_keeps_the_first(again, why):
+    cal, starts, trials = _search_mapped_again(_from_stage1(SHORT, 790.0, 0.205), again)
+    assert len(starts) == 2 and cal.camera == SHORT and cal.evidence == "reprojection"
+    assert "not used, " in trials[-1] and why in trials[-1]
+
+
+def test_a_window_stage_2_moved_little_or_the_default_is_not_mapped_again():
+    for stage1_fx, knob in [(900.0, 0.10), (790.0, 0.0)]:
+        cal, starts, _ = _search_mapped_again(_from_stage1(SHORT, stage1_fx, 0.205),
+                                              _from_stage1(TRUE, 930.0, 0.1), knob=knob)
+        assert len(starts) == 1 and cal.camera == SHORT
