@@ -60,12 +60,6 @@ class PipelineConfig(BaseModel):
         "spanning the whole curve plus calib_window_m, up to this many metres (0: none)")
     calib_long_window_images: int = Field(
         33, description="images a whole-curve candidate maps (calib_long_window_max_m)")
-    # Tuning c0962 (2026-11-30-c0962-start.md): stage 1 from the wide guess ended 15.7 % short and
-    # stage 2 stuck at -2.54 % (0.205 px); from the true focal length, +0.09 % at 0.180 px.
-    calib_remap_moved: float = Field(
-        0.0, ge=0.0, description="when stage 2 moved the accepted window's fx further than this "
-        "fraction from stage 1's, map the window again from stage 2's camera and take that "
-        "mapping when it fits better (0: never)")
     # 0.5 on the tuning half: a 180 deg U-turn at 17 m/s calibrated (13/22 registered before),
     # fx p90 1.26 -> 1.03 %, k1 p90 11 -> 7 %; one more journey within every bar.
     calib_rotation_share: float = Field(

@@ -27,7 +27,6 @@ else is refused with every candidate's reason.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
@@ -497,49 +496,6 @@ def _refined_jointly(windows: list[CalibrationWindow], window: CalibrationWindow
     return joint, partner
 
 
-def _mapped_again(window: CalibrationWindow, accepted: WindowResult, cfg: PipelineConfig,
-                  map_window: Callable[[CalibrationWindow, CameraModel], WindowResult],
-                  trials: list[str]) -> WindowResult | None:
-    """The accepted ``window`` mapped again from its stage-2 camera, when stage 2 moved fx
-    further than ``calib_remap_moved`` from stage 1 and the new mapping passes the judge,
-    registers as many frames, lands nearer the first camera than stage 2 moved from stage 1 and
-    fits better (a lower mean reprojection error); else None.
-
-    Stage 1 triangulates and filters the window's points under its own camera; started far
-    off, it can build a structure whose minimum stage 2 cannot leave (tuning c0962: -2.54 % at
-    0.205 px, where the structure built from the true focal length gave +0.09 % at 0.180 px).
-    Taking the new mapping whatever its error sent tuning c0838 from +1.9 to +3.1 %
-    (2026-11-30-remap.md); a wrong structure is not asked to fit better here."""
-    stage1 = accepted.stage1_camera
-    if not cfg.calib_remap_moved or stage1 is None:
-        return None
-    moved = abs(accepted.camera.fx / stage1.fx - 1.0)
-    if moved <= cfg.calib_remap_moved:
-        return None
-    c = accepted.camera
-    focal_px = 0.5 * (c.fx + c.fy)  # stage 1 starts from the whole camera: pp, k1, k2 too
-    t0 = time.perf_counter()
-    again = map_window(window, c.replace(fx=focal_px, fy=focal_px))
-    mapped_s = time.perf_counter() - t0
-    why = judge_window(again, cfg)
-    if why is None and len(again.image_names) < len(accepted.image_names):
-        why = f"registered {len(again.image_names)} frames, fewer than {len(accepted.image_names)}"
-    if why is None and abs(again.camera.fx / c.fx - 1.0) > moved:
-        why = (f"fx {again.camera.fx:.1f} is further from {c.fx:.1f} than stage 2 moved from "
-               "stage 1")
-    if why is None and again.reprojection_error_px >= accepted.reprojection_error_px:
-        why = (f"fits no better ({again.reprojection_error_px:.3f} px against "
-               f"{accepted.reprojection_error_px:.3f})")
-    log.info("calibration: %s mapped again from stage 2's fx %.0f: %s", window.label, focal_px,
-             why or "taken")
-    trials.append(f"mapped again (stage 2 moved fx {100 * moved:.1f} % from stage 1): "
-                  f"{len(again.image_names)}/{again.n_input} registered, "
-                  f"{again.reprojection_error_px:.3f} px against "
-                  f"{accepted.reprojection_error_px:.3f}, fx {again.camera.fx:.1f} against "
-                  f"{c.fx:.1f}, {mapped_s:.1f} s: {'not used, ' + why if why else 'taken'}")
-    return None if why else again
-
-
 def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    map_window: Callable[[CalibrationWindow, CameraModel], WindowResult], *,
                    hint: CameraModel | None = None, width: int, height: int,
@@ -627,20 +583,17 @@ def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
                             + "; ".join(reasons))
     window, accepted = min(chosen, key=lambda g: g[1].reprojection_error_px)
-    first = accepted  # the search's own camera stays on record (``single_window``)
-    if again := _mapped_again(window, accepted, cfg, map_window, trials):
-        accepted, evidence = again, evidence + "+mapped again"
     best, used = accepted, [window]
     if cfg.calib_joint and refine_jointly is not None:
         joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
         if partner is not None:
             best, used, evidence = joint, [window, partner], evidence + "+joint"
-    calib = Calibration(camera=best.camera, source="self", stage1=first.stage1_camera,
+    calib = Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
                         n_images=best.n_input, n_registered=len(best.image_names),
                         reprojection_error_px=best.reprojection_error_px,
                         rotation_deg=rotation_covered_deg(accepted.T_model_cam),
                         windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
-                        evidence=evidence, single_window=first.camera,
+                        evidence=evidence, single_window=accepted.camera,
                         focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
     if stored is None or held_fit is None or accepted.model_dir is None:
         return calib
