@@ -130,6 +130,16 @@ def run_corpus_compare_command(args) -> int:
     return 0
 
 
+def run_corpus_report_command(args) -> int:
+    from bench.corpus_report import render_records
+
+    md = render_records(_runs("corpus-report", args.jsonl), [str(p) for p in args.jsonl])
+    if args.out:
+        args.out.write_text(md)
+    print(md)
+    return 0
+
+
 def run_turns_command(args) -> int:
     from bench.turn_detection import run
 
@@ -430,6 +440,14 @@ def add_parsers(sub) -> None:
     cc.add_argument("--before", type=Path, nargs="+", required=True, help="JSONL files")
     cc.add_argument("--after", type=Path, nargs="+", required=True, help="JSONL files")
     cc.set_defaults(func=run_corpus_compare_command)
+    cr = bench_sub.add_parser(
+        "corpus-report", help="the corpus report of runs already made, pooled",
+        description="Reads corpus runs' JSONL files (several: their journeys pooled; a journey "
+        "in more than one keeps its last record) and prints the report's tables with the "
+        "current report code, without running anything.")
+    cr.add_argument("jsonl", type=Path, nargs="+", help="<date>-corpus<tag>.jsonl files")
+    cr.add_argument("--out", type=Path, help="also write the markdown here")
+    cr.set_defaults(func=run_corpus_report_command)
     rc = bench_sub.add_parser(
         "render-check", help="does each rendered journey's imagery fit its own true camera?",
         description="SIFT matches between frames of each journey's sharpest turn, triangulated "

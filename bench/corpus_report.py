@@ -100,6 +100,47 @@ def sigma_ratios(records: list[dict]) -> dict[str, list[float]]:
     return out
 
 
+# Where the misses sit against stage 2's own sigma (its covariance): bins of the larger of fx's
+# and fy's sigma (% of the value), and of k1's bar (5 % of the true |k1|) in sigmas of k1. A bar
+# under one sigma is one the data do not resolve, whatever the method; the real error is a median
+# 1.8 times the sigma on the corpus (``sigma_ratios``).
+FOCAL_SIGMA_EDGES_PCT = (0.1, 0.2, 0.3)
+K1_BAR_EDGES_SIGMAS = (1.0, 4.0)
+
+
+def own_sigmas(r: dict) -> tuple[float, float] | None:
+    """(larger of fx's and fy's sigma in %, k1's bar in sigmas of k1) of an accepted record with
+    stage 2's covariance (``intrinsics_std``), else None."""
+    cal = r.get("calibration") or {}
+    std, cam, k1 = cal.get("intrinsics_std") or [], cal.get("camera") or {}, r["params"].get("k1")
+    if (outcome(r) != "accepted" or len(std) < 5 or not cam or k1 is None
+            or not all(math.isfinite(v) and v > 0 for v in std[:5])):
+        return None
+    focal_pct = max(100 * std[0] / cam["fx"], 100 * std[1] / cam["fy"])
+    return focal_pct, BAR["k1_pct"] / 100 * abs(k1) / std[4]
+
+
+def _bin_labels(edges: tuple[float, ...], unit: str) -> list[str]:
+    return ([f"< {edges[0]:g}{unit}"]
+            + [f"{a:g}-{b:g}{unit}" for a, b in zip(edges, edges[1:])] + [f"≥ {edges[-1]:g}{unit}"])
+
+
+def misses_by_sigma(records: list[dict]) -> list[tuple[str, int, int]]:
+    """(bin label, accepted records in it, of them outside the bar's fx/fy or k1 part) per bin of
+    ``own_sigmas``: first the focal bins (misses: fx or fy), then the k1 bins (misses: k1)."""
+    rows = [(r, s) for r in records if (s := own_sigmas(r)) is not None]
+    out = []
+    for i, (edges, label, unit, keys) in enumerate((
+            (FOCAL_SIGMA_EDGES_PCT, "fx, fy sigma (the larger)", " %", ("fx_pct", "fy_pct")),
+            (K1_BAR_EDGES_SIGMAS, "k1 bar (5 % of \\|k1\\|) in sigmas of k1", "", ("k1_pct",)))):
+        where = np.digitize([s[i] for _, s in rows], edges)
+        for b, name in enumerate(_bin_labels(edges, unit)):
+            inside = [r for (r, _), w in zip(rows, where) if w == b]
+            missed = sum(not meets_bar(r, keys) for r in inside)
+            out.append((f"{label} {name}", len(inside), missed))
+    return out
+
+
 def is_steep(r: dict) -> bool:
     return (r["params"].get("max_turn_deg") or 0.0) >= STEEP_TURN_DEG
 
@@ -140,6 +181,7 @@ def half_summary(records: list[dict]) -> dict:
         "sigma_ratio": {k: (quantile(v, 50), quantile(v, 90))
                         for k, v in sigma_ratios(records).items()},
         "wrong": sorted(r["name"] for r in accepted if is_wrong(r)),
+        "by_sigma": misses_by_sigma(records),
         "calib_s_median": quantile((r.get("calib_s") for r in records), 50),
         "calib_s_p90": quantile((r.get("calib_s") for r in records), 90),
         "wall_s_median": quantile((r.get("wall_s") for r in records), 50),
@@ -400,6 +442,19 @@ def _interval(ci: list[float] | None, scale: float, digits: int) -> str:
     return "" if not ci else f" [{fmt(scale * ci[0], digits)}-{fmt(scale * ci[1], digits)}]"
 
 
+def table_sigma(report: dict) -> str:
+    """Accepted calibrations and their misses per bin of stage 2's own sigma (``own_sigmas``)."""
+    s = [report["summary"][h]["by_sigma"] for h in HALVES]
+    rows = [[label, *(f"{n}, {m}" if n else "–" for _, n, m in cells)]
+            for label, *cells in ((a[0], a, b) for a, b in zip(*s))]
+    if not any(n for half in s for _, n, _ in half):
+        return "### Misses by stage 2's own sigma\n\nNo accepted calibration with a covariance."
+    return ("### Misses by stage 2's own sigma\n\nAccepted calibrations with stage 2's covariance, "
+            "and of them how many miss the bar's fx/fy part (focal rows) or its k1 part (k1 rows), "
+            "per bin of that covariance's sigma.\n\n"
+            + md_table(["bin", *(f"{h}: accepted, missed" for h in HALVES)], rows))
+
+
 def table_failures(report: dict) -> str:
     rows = [[g["reason"].replace("|", "/"), *(str(g.get(h, 0)) for h in HALVES),
              ", ".join(g["names"][:4]) + (" …" if len(g["names"]) > 4 else "")]
@@ -454,8 +509,22 @@ def render_markdown(report: dict) -> str:
             f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
             f"this session {fmt(m.get('wall_s'), 0)} s. Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, "
             f"|k1| ≤ 5 %.\n\n")
-    tables = (table_summary, table_failures, table_params, table_journeys)
+    tables = (table_summary, table_sigma, table_failures, table_params, table_journeys)
     return head + "\n\n".join(t(report) for t in tables) + "\n"
+
+
+def render_records(records: list[dict], sources: list[str]) -> str:
+    """The report's tables (not the journey list) over runs already made, pooled; a journey in
+    more than one run keeps its last record, so a later re-run of a journey replaces it."""
+    last = {r["name"]: r for r in records}
+    report = build_report({}, list(last.values()))
+    head = (f"# Signmap corpus records, re-read\n\n{len(last)} journeys from "
+            + ", ".join(f"`{s}`" for s in sources)
+            + (f" ({len(records) - len(last)} earlier records of the same journeys left out)"
+               if len(records) > len(last) else "")
+            + ". Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, |k1| ≤ 5 %.\n\n")
+    return head + "\n\n".join(t(report) for t in (table_summary, table_sigma,
+                                                     table_failures)) + "\n"
 
 
 def plot_corpus(records: list[dict], png: Path) -> Path:

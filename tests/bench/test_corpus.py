@@ -147,6 +147,55 @@ def test_near_zero_k1_and_stage_2s_own_sigma_are_reported_beside_the_bar():
     assert "| \\|error\\| / stage 2's own sigma, fx, cx, cy: median / p90 | 1.0 / 1.0, 2.0" in table
 
 
+def _with_sigmas(name: str, half: str, *, fx_pct: float, fx_std_px: float, k1: float,
+                 k1_pct: float, k1_std: float) -> dict:
+    r = _record(name, half, fx_pct=fx_pct, k1_pct=k1_pct)
+    r["params"]["k1"] = k1
+    r["calibration"].update(camera={**TRUE},
+                            intrinsics_std=[fx_std_px, fx_std_px / 2, 0.5, 0.5, k1_std, 1e-3])
+    return r
+
+
+def test_misses_are_binned_by_stage_2s_own_sigma():
+    records = [
+        # fx sigma 0.05 % (0.5 px of 1000), inside; k1 bar 0.01 = 10 sigmas of 1e-3.
+        _with_sigmas("t1", "tuning", fx_pct=0.3, fx_std_px=0.5, k1=-0.2, k1_pct=2.0, k1_std=1e-3),
+        # fx sigma 0.25 %, 1.2 % off; k1 -0.01 has a bar of 5e-4, half its sigma, and misses it.
+        _with_sigmas("t2", "tuning", fx_pct=1.2, fx_std_px=2.5, k1=-0.01, k1_pct=30.0,
+                     k1_std=1e-3),
+        # fx sigma 0.25 %, inside; k1 bar 2 sigmas, inside.
+        _with_sigmas("c1", "check", fx_pct=-0.4, fx_std_px=2.5, k1=-0.04, k1_pct=3.0,
+                     k1_std=1e-3),
+        _record("t3", "tuning")]  # no covariance: in no bin
+    by_bin = {label: (n, m) for label, n, m in cr.misses_by_sigma(records)}
+    assert by_bin["fx, fy sigma (the larger) < 0.1 %"] == (1, 0)
+    assert by_bin["fx, fy sigma (the larger) 0.2-0.3 %"] == (2, 1)
+    assert by_bin["k1 bar (5 % of \\|k1\\|) in sigmas of k1 < 1"] == (1, 1)
+    assert by_bin["k1 bar (5 % of \\|k1\\|) in sigmas of k1 1-4"] == (1, 0)
+    assert by_bin["k1 bar (5 % of \\|k1\\|) in sigmas of k1 ≥ 4"] == (1, 0)
+    assert sum(n for n, _ in by_bin.values()) == 6  # three records, each in one bin of each kind
+    table = cr.table_sigma(cr.build_report({}, records))
+    assert "| fx, fy sigma (the larger) 0.2-0.3 % | 1, 1 | 1, 0 |" in table
+    assert "| fx, fy sigma (the larger) ≥ 0.3 % | – | – |" in table
+
+
+def test_corpus_report_rereads_runs_and_keeps_a_journeys_last_record(tmp_path: Path, capsys):
+    first, second = tmp_path / "a.jsonl", tmp_path / "b.jsonl"
+    meta = json.dumps({"kind": "meta", "tag": ""})
+    first.write_text("\n".join([meta, json.dumps(_record("t1", "tuning", fx_pct=2.0)),
+                                json.dumps(_record("c1", "check"))]) + "\n")
+    second.write_text("\n".join([meta, json.dumps(_record("t1", "tuning", fx_pct=0.2))]) + "\n")
+    out = tmp_path / "report.md"
+    assert bench_cli.main(["corpus-report", str(first), str(second), "--out", str(out)]) == 0
+    md = out.read_text()
+    assert md == capsys.readouterr().out.rstrip("\n") + "\n"
+    assert "2 journeys from" in md and "1 earlier records of the same journeys left out" in md
+    assert "| accepted with fx, fy ≤ 1 % | 1/1 | 1/1 |" in md  # t1's re-run, not its 2.0 %
+    assert "### Misses by stage 2's own sigma" in md
+    with pytest.raises(SystemExit, match="no such file"):
+        bench_cli.main(["corpus-report", str(tmp_path / "missing.jsonl")])
+
+
 def test_sign_rows_only_on_full_runs():
     records = _records()
     records[0]["signs"] = {"n_signs": 5, "n_mappable": 6, "n_mappable_found": 5, "n_false": 1,
