@@ -102,8 +102,8 @@ def sigma_ratios(records: list[dict]) -> dict[str, list[float]]:
 
 # Where the misses sit against stage 2's own sigma (its covariance): bins of the larger of fx's
 # and fy's sigma (% of the value), and of k1's bar (5 % of the true |k1|) in sigmas of k1. A bar
-# under one sigma is one the data do not resolve, whatever the method; the real error is a median
-# 1.8 times the sigma on the corpus (``sigma_ratios``).
+# under one sigma is one the data do not resolve, whatever the method; and the real error is a
+# median 1.4-1.9 times the sigma on the corpus's halves (``sigma_ratios``, 2026-11-30).
 FOCAL_SIGMA_EDGES_PCT = (0.1, 0.2, 0.3)
 K1_BAR_EDGES_SIGMAS = (1.0, 4.0)
 
@@ -445,8 +445,8 @@ def _interval(ci: list[float] | None, scale: float, digits: int) -> str:
 def table_sigma(report: dict) -> str:
     """Accepted calibrations and their misses per bin of stage 2's own sigma (``own_sigmas``)."""
     s = [report["summary"][h]["by_sigma"] for h in HALVES]
-    rows = [[label, *(f"{n}, {m}" if n else "–" for _, n, m in cells)]
-            for label, *cells in ((a[0], a, b) for a, b in zip(*s))]
+    rows = [[tuning[0], *(f"{n}, {m}" if n else "–" for _, n, m in (tuning, check))]
+            for tuning, check in zip(*s)]
     if not any(n for half in s for _, n, _ in half):
         return "### Misses by stage 2's own sigma\n\nNo accepted calibration with a covariance."
     return ("### Misses by stage 2's own sigma\n\nAccepted calibrations with stage 2's covariance, "
