@@ -31,6 +31,7 @@ WRONG_FOCAL_PCT = 3.0
 # most of the corpus's lenses; beside the bar the report also counts k1 within this absolute
 # error, so a reader sees which bar misses are of that kind.
 K1_ABS_FLOOR = 0.005
+BAR_TEXT = "Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, |k1| ≤ 5 %."  # BAR, for a report's head
 STEEP_TURN_DEG, GENTLE_TURN_DEG = 45.0, 30.0
 # distortion_px: metrics.true_distortion_error_px, reported beside the bar (not part of it).
 ERROR_KEYS = ("fx_pct", "fy_pct", "cx_px", "cy_px", "k1_pct", "k2_pct", "distortion_px")
@@ -82,15 +83,23 @@ def meets_bar_k1_floor(r: dict) -> bool:
     return k1_ok and meets_bar(r, ("fx_pct", "fy_pct", "cx_px", "cy_px"))
 
 
+def stage2_std(r: dict, n: int) -> list[float] | None:
+    """The first ``n`` of stage 2's standard deviations (``intrinsics_std``: fx, fy, cx, cy, k1,
+    k2) of an accepted record, when it has them all finite; else None."""
+    std = (r.get("calibration") or {}).get("intrinsics_std") or []
+    if outcome(r) != "accepted" or len(std) < n or not all(map(math.isfinite, std[:n])):
+        return None
+    return std[:n]
+
+
 def sigma_ratios(records: list[dict]) -> dict[str, list[float]]:
     """|error| / stage 2's own sigma for fx, cx and cy of each accepted record that has it: how
     far its covariance understates the real error (1: honest)."""
     out: dict[str, list[float]] = {"fx": [], "cx": [], "cy": []}
     for r in records:
-        cal = r.get("calibration") or {}
-        std = cal.get("intrinsics_std") or []
-        if outcome(r) != "accepted" or len(std) < 4 or not all(map(math.isfinite, std[:4])):
+        if (std := stage2_std(r, 4)) is None:
             continue
+        cal = r["calibration"]
         fx_pct = error(r, "fx_pct")
         if fx_pct is not None and std[0] > 0:
             out["fx"].append(abs(fx_pct) / (100 * std[0] / cal["camera"]["fx"]))
@@ -111,10 +120,9 @@ K1_BAR_EDGES_SIGMAS = (1.0, 4.0)
 def own_sigmas(r: dict) -> tuple[float, float] | None:
     """(larger of fx's and fy's sigma in %, k1's bar in sigmas of k1) of an accepted record with
     stage 2's covariance (``intrinsics_std``), else None."""
-    cal = r.get("calibration") or {}
-    std, cam, k1 = cal.get("intrinsics_std") or [], cal.get("camera") or {}, r["params"].get("k1")
-    if (outcome(r) != "accepted" or len(std) < 5 or not cam or k1 is None
-            or not all(math.isfinite(v) and v > 0 for v in std[:5])):
+    std, k1 = stage2_std(r, 5), r["params"].get("k1")
+    cam = (r.get("calibration") or {}).get("camera")
+    if std is None or not cam or k1 is None or min(std) <= 0:
         return None
     focal_pct = max(100 * std[0] / cam["fx"], 100 * std[1] / cam["fy"])
     return focal_pct, BAR["k1_pct"] / 100 * abs(k1) / std[4]
@@ -507,8 +515,7 @@ def render_markdown(report: dict) -> str:
             f"{m.get('cpus')} CPUs, pycolmap {m.get('pycolmap')}; "
             f"{'calibration only; ' if m.get('calibrate_only') else ''}"
             f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
-            f"this session {fmt(m.get('wall_s'), 0)} s. Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, "
-            f"|k1| ≤ 5 %.\n\n")
+            f"this session {fmt(m.get('wall_s'), 0)} s. {BAR_TEXT}\n\n")
     tables = (table_summary, table_sigma, table_failures, table_params, table_journeys)
     return head + "\n\n".join(t(report) for t in tables) + "\n"
 
@@ -522,7 +529,7 @@ def render_records(records: list[dict], sources: list[str]) -> str:
             + ", ".join(f"`{s}`" for s in sources)
             + (f" ({len(records) - len(last)} earlier records of the same journeys left out)"
                if len(records) > len(last) else "")
-            + ". Bar: |fx|, |fy| ≤ 1 %, |cx|, |cy| ≤ 4 px, |k1| ≤ 5 %.\n\n")
+            + f". {BAR_TEXT}\n\n")
     return head + "\n\n".join(t(report) for t in (table_summary, table_sigma,
                                                      table_failures)) + "\n"
 
