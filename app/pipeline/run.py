@@ -14,12 +14,13 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from app.pipeline.colmap.sfm import WindowRequest, WindowResult
-from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, held_camera_fit, read_gray
+from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
@@ -30,8 +31,8 @@ from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult
 
 log = logging.getLogger(__name__)
 
-# Seconds per mapped image, measured on the 2-core machine (turn-70 and long-1000, 2026-11-23):
-# how the progress fraction divides the journey between calibration and ego-motion.
+# Seconds per mapped image, measured on a 2-core machine (turn-70 and long-1000): how the
+# progress fraction divides the journey between calibration and ego-motion.
 CALIBRATE_S_PER_IMAGE = 0.65
 EGO_MOTION_S_PER_IMAGE = 0.12
 OTHER_STAGES = {"turns": 0.01, "align": 0.01, "triangulate": 0.03}
@@ -152,9 +153,6 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                 verbose: bool = False) -> Reconstruction:
     """The stages up to ego-motion: turns and plan, calibrate, ego_motion."""
     workdir.mkdir(parents=True, exist_ok=True)
-    names = [f.path.name for f in journey.frames]
-    journal = _Journal()
-
     origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0],
                               journey.alt_m[0] if journey.has_altitude else None,
                               config.metric_frame)
@@ -162,7 +160,39 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                               journey.alt_m if journey.has_altitude else None)
     # Turn finding keeps the straight-line positions it was tuned on; alignment takes the spline's.
     xyz_align = frame_positions(journey, origin, xyz_gps) if config.gps_smoothing else xyz_gps
+    journal = _Journal()
+    the_plan, clock = _plan_stage(journey, xyz_gps, config, known_camera, journal, progress)
+    job = _Job(journey, config, workdir, verbose, journal, clock)
+    ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
+                       step=the_plan.ego_step, front_end=the_plan.ego_front_end, config=config,
+                       verbose=verbose)
+    calib = _calibrate_stage(job, the_plan, known_camera, ego_sfm)
+    poses = _ego_motion_stage(job, the_plan, calib.camera, ego_sfm) if the_plan.tracks else []
+    return Reconstruction(calib, the_plan.tracks, poses, xyz_gps, xyz_align, origin,
+                          clock.timings_s, journal.reports, the_plan.too_short)
 
+
+@dataclass(frozen=True)
+class _Job:
+    """One journey's run up to ego-motion: what its stages read, and where they report."""
+
+    journey: Journey
+    config: PipelineConfig
+    workdir: Path
+    verbose: bool
+    journal: _Journal
+    clock: _Clock
+
+    @property
+    def names(self) -> list[str]:
+        return [f.path.name for f in self.journey.frames]
+
+
+def _plan_stage(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
+                known_camera: CameraModel | None, journal: _Journal,
+                progress: ProgressFn) -> tuple[plan.JourneyPlan, _Clock]:
+    """The turns stage: the journey's plan (turns, calibration candidates, ego-motion windows),
+    and the clock whose stage weights the plan gives."""
     progress("turns", 0.0, "")
     t0 = time.perf_counter()
     with journal.stage("turns") as entry:
@@ -173,93 +203,100 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     clock = _Clock(progress, _stage_weights(config.calib_images * bool(the_plan.calib_windows),
                                             len(the_plan.ego_frames)))
     clock.finished("turns", time.perf_counter() - t0)
-    tracks, ego_windows = the_plan.tracks, the_plan.ego_windows
     log.info("journey %s: %d frames, %d turns, %d sign tracks, %d ego windows", journey.camera_id,
-             len(journey.frames), len(the_plan.turns), len(tracks), len(ego_windows))
+             len(journey.frames), len(the_plan.turns), len(the_plan.tracks),
+             len(the_plan.ego_windows))
+    return the_plan, clock
 
+
+# The calibration candidates' SIFT, extracted once per frame (``colmap.sift_cache``).
+SHARED_SIFT = "sift_calibrate.db"
+
+
+def _calibrate_stage(job: _Job, the_plan: plan.JourneyPlan, known_camera: CameraModel | None,
+                     ego_sfm: StageSfm) -> Calibration:
+    """The calibrate stage; the ego-motion stage's KLT tracks, which need no camera, are made
+    meanwhile in a thread."""
     # Keyed by image name: a work directory used again for another journey must not lend it
     # the last one's features.
-    shared_sift = workdir / "sift_calibrate.db"
-    shared_sift.unlink(missing_ok=True)
-
-    def calibrate_stage(window: CalibrationWindow, kind: str) -> StageSfm:
-        # Each candidate window gets correspondences of its own frames only, when it is tried:
-        # the first candidate usually succeeds, and the others' features would be wasted. Frames
-        # an earlier candidate extracted come from ``shared_sift``.
-        step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
-        first, last = window.frame_idx[0], window.frame_idx[-1]
-        return StageSfm("calibrate", workdir / f"sfm_{kind}_{first}_{last}", journey,
-                        window.frame_idx, step=step, front_end=config.calib_front_end,
-                        config=config, xyz_gps=xyz_gps, verbose=verbose,
-                        feature_cache=shared_sift if config.calib_share_features else None)
-
-    # The accepted window's model is put to the stored camera (calibrate.stored_or_own).
-    check_stored = known_camera is not None and config.calib_stored_focal_margin > 0
-
-    def held_fit(window: WindowResult, cameras: list[CameraModel]) -> list[float]:
-        return held_camera_fit(window, cameras, config=config,
-                               workdir=workdir / "calibrate_held_fit", verbose=verbose)
-
-    def calibrate_window(window: CalibrationWindow, start: CameraModel) -> WindowResult:
-        n_images = len(window.frame_idx)
-        request = WindowRequest(
-            image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
-            keep_model=config.calib_joint or check_stored,
-            retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
-            retry_below=int(np.ceil(config.calib_retry_below_ratio * n_images)))
-        return calibrate_stage(window, "calibrate").run([request], None)[0]
-
-    def refine_jointly(window: CalibrationWindow, accepted: WindowResult,
-                       partner: CalibrationWindow) -> WindowResult:
-        stage = calibrate_stage(partner, "calibrate_held")
-        request = WindowRequest(image_names=[names[i] for i in partner.frame_idx],
-                                camera=accepted.camera, keep_model=True)
-        mapped = stage.run([request], accepted.camera)[0]
-        return mapped if mapped.error else stage.refine_jointly([accepted, mapped])
-
-    def on_candidate(k: int, total: int, window: CalibrationWindow) -> None:
-        # Most journeys stop at the first candidate: each later one halves what is left.
-        clock.within("calibrate", 1.0 - 0.5**k,
-                     f"candidate window {k + 1} of at most {total} ({window.label})")
-
-    ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
-                       step=the_plan.ego_step, front_end=the_plan.ego_front_end, config=config,
-                       xyz_gps=xyz_gps, verbose=verbose)
-    calib: Calibration
-    with journal.stage("calibrate") as entry:
+    (job.workdir / SHARED_SIFT).unlink(missing_ok=True)
+    with job.journal.stage("calibrate") as entry:
         if not the_plan.calib_windows and known_camera is None:
-            raise calibrate.no_turn_error(config, the_plan.image_frames_compared)
+            raise calibrate.no_turn_error(job.config, the_plan.image_frames_compared)
         with ThreadPoolExecutor(max_workers=1) as background:
-            if tracks:  # KLT tracking needs no camera: it runs while COLMAP calibrates
+            if the_plan.tracks:
                 background.submit(ego_sfm.correspondences)
-            with clock.stage("calibrate", f"{len(the_plan.calib_windows)} candidate windows"):
-                calib = _calibrate(journey, the_plan.calib_windows, config, calibrate_window,
-                                   refine_jointly, on_candidate, known_camera, entry,
-                                   held_fit if check_stored else None)
-    camera = calib.camera
+            with job.clock.stage("calibrate",
+                                 f"{len(the_plan.calib_windows)} candidate windows"):
+                return _calibrate(job, the_plan.calib_windows, known_camera, entry)
 
-    if not tracks:
-        return Reconstruction(calib, [], [], xyz_gps, xyz_align, origin, clock.timings_s,
-                              journal.reports, the_plan.too_short)
 
-    with journal.stage("ego_motion") as entry, \
+class _CandidateProgress:
+    """Progress through the calibrate stage as its candidates are tried. Most journeys stop at
+    the first, so candidate k (from 0) spans the k+1-th half of what is left of the stage,
+    [1 - 0.5**k, 1 - 0.5**(k + 1)]; its features, extracted and matched, the first
+    ``FEATURES_SHARE`` of that."""
+
+    FEATURES_SHARE = 0.5
+
+    def __init__(self, clock: _Clock) -> None:
+        self.clock, self.k, self.label = clock, 0, ""
+
+    def trying(self, k: int, total: int, window: CalibrationWindow) -> None:
+        self.k, self.label = k, f"candidate window {k + 1} of at most {total} ({window.label})"
+        self._at(0.0, self.label)
+
+    def features_matched(self) -> None:
+        self._at(self.FEATURES_SHARE, f"{self.label}: features matched")
+
+    def mapped(self, done: int, total: int) -> None:
+        self._at(done / max(total, 1), f"{self.label}: mapped")
+
+    def _at(self, share: float, message: str) -> None:
+        self.clock.within("calibrate", 1.0 - 0.5**self.k * (1.0 - 0.5 * share), message)
+
+
+def _map_candidate(job: _Job, candidates: _CandidateProgress, window: CalibrationWindow,
+                   start: CameraModel) -> WindowResult:
+    """Self-calibration's mapping of one candidate window from the camera ``start``. Each
+    candidate gets correspondences of its own frames only, when it is tried: the first usually
+    succeeds, and the others' features would be wasted. Frames an earlier candidate extracted
+    come from the journey's ``SHARED_SIFT``."""
+    config, names = job.config, job.names
+    step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
+    first, last = window.frame_idx[0], window.frame_idx[-1]
+    stage = StageSfm("calibrate", job.workdir / f"sfm_calibrate_{first}_{last}", job.journey,
+                     window.frame_idx, step=step, front_end=config.calib_front_end,
+                     config=config, verbose=job.verbose,
+                     feature_cache=job.workdir / SHARED_SIFT if config.calib_share_features
+                     else None)
+    request = WindowRequest(
+        image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
+        retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
+        retry_below=int(np.ceil(config.calib_retry_below_ratio * len(window.frame_idx))))
+    return stage.run([request], None, on_mapped=candidates.mapped,
+                     on_prepared=candidates.features_matched)[0]
+
+
+def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel,
+                      ego_sfm: StageSfm) -> list[ego_motion.WindowPoses]:
+    """The ego_motion stage: the windows around the signs mapped with the calibrated camera."""
+    ego_windows, clock = the_plan.ego_windows, job.clock
+    with job.journal.stage("ego_motion") as entry, \
             clock.stage("ego_motion", f"{len(ego_windows)} windows"):
         results = ego_sfm.run(ego_motion.requests(
-            ego_windows, names, camera, step=the_plan.ego_step, extra=the_plan.off_grid,
-            position_priors=config.ego_position_priors, init_gap_frames=config.match_overlap,
-            more_init_pairs=config.ego_more_init_pairs,
-            keypoint_depths=bool(config.alignment_scale_ratio_sigma),
-            map_leftovers_min_images=config.ego_map_leftovers_min_images),
+            ego_windows, job.names, camera, step=the_plan.ego_step, extra=the_plan.off_grid,
+            init_gap_frames=job.config.match_overlap,
+            more_init_pairs=job.config.ego_more_init_pairs),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
-        poses = ego_motion.window_poses(ego_windows, results, names)
+        poses = ego_motion.window_poses(ego_windows, results, job.names)
         entry.take(ego_motion.report(ego_windows, results, poses))
         if not poses:
             raise PipelineError("ego_motion", "no window around the signs could be "
                                 "reconstructed: " + "; ".join(r.error or "too few frames registered"
                                                               for r in results))
-    return Reconstruction(calib, tracks, poses, xyz_gps, xyz_align, origin, clock.timings_s,
-                          journal.reports, the_plan.too_short)
+    return poses
 
 
 def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig, *,
@@ -285,8 +322,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                       "positions neither align nor judge a window"])
         aligned = align.align_windows(
             poses, xyz_align, joint=config.alignment_joint,
-            sigmas=align.JointSigmas(gps_m=config.gps_sigma_m,
-                                     scale_ratio=config.alignment_scale_ratio_sigma or None),
+            sigmas=align.JointSigmas(gps_m=config.gps_sigma_m),
             max_independent_rms_m=(place_signs.alignment_limit_m(journey.gps_noise_m, config)
                                    if config.alignment_unlink_broken else None),
             on_dropped=lambda p, why: dropped.append(
@@ -362,26 +398,31 @@ def frame_positions(journey: Journey, origin: geodesy.LocalFrame,
                                         journey.gps_noise_m)
 
 
-def _calibrate(journey: Journey, calib_windows: list[CalibrationWindow], config: PipelineConfig,
-               calibrate_window, refine_jointly, on_candidate,
-               known_camera: CameraModel | None,
-               entry: _Entry, held_fit: calibrate.HeldFit | None = None) -> Calibration:
+def known_camera_used(camera_id: str) -> str:
+    """How the calibrate stage's report says it used ``known_camera``, in the service's words (the
+    camera's stored calibration); ``signmap process``, which was given it as a file, says so."""
+    return f"stored calibration of camera {camera_id} used"
+
+
+def _calibrate(job: _Job, calib_windows: list[CalibrationWindow],
+               known_camera: CameraModel | None, entry: _Entry) -> Calibration:
     """Self-calibration on the turns, or the stored calibration of the camera when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
     Fills in the calibrate stage's report ``entry``."""
-    stored = f"stored calibration of camera {journey.camera_id} used"
+    journey, config = job.journey, job.config
+    stored = known_camera_used(journey.camera_id)
     if not calib_windows:
         entry.summary = (f"{stored} (reuse_known_calibration is set)"
                          if config.reuse_known_calibration else
                          f"{stored}: no candidate window to self-calibrate on")
         return Calibration(known_camera, "supplied")
+    candidates = _CandidateProgress(job.clock)
     try:
-        calib = calibrate.self_calibrate(calib_windows, config, calibrate_window,
-                                         hint=journey.camera_prior, width=journey.image_width,
-                                         height=journey.image_height, on_candidate=on_candidate,
-                                         trials=entry.details, refine_jointly=refine_jointly,
-                                         frame_names=[f.path.name for f in journey.frames],
-                                         stored=known_camera, held_fit=held_fit)
+        calib = calibrate.self_calibrate(
+            calib_windows, config, partial(_map_candidate, job, candidates),
+            start=calibrate.initial_camera(journey.image_width, journey.image_height, config,
+                                           journey.camera_prior),
+            on_candidate=candidates.trying, trials=entry.details, frame_names=job.names)
     except PipelineError as exc:
         if known_camera is None:
             raise

@@ -148,8 +148,7 @@ class Calibration:
     """Outcome of self-calibration (or of reusing a stored calibration).
 
     ``source`` is ``"self"`` when this journey calibrated itself, ``"supplied"`` when an earlier
-    calibration of the same ``camera_id`` was used: the journey could not calibrate, or its
-    accepted window fitted the stored camera as well (``single_window`` is then its own). (The
+    calibration of the same ``camera_id`` was used: the journey could not calibrate. (The
     manifest's camera hint only seeds self-calibration's first focal length.)
     """
 
@@ -162,10 +161,8 @@ class Calibration:
     rotation_deg: float = 0.0
     windows: list[tuple[int, int]] = field(default_factory=list)
     # Why a self-calibration was trusted: "reprojection" (one window under the sharp-image
-    # error) or "agreement" (two windows landed on the same camera), "+joint" when stage 2 then
-    # ran over two windows at once.
+    # error), "agreement" (two windows landed on the same camera) or "agreement on shared road".
     evidence: str = ""
-    single_window: CameraModel | None = None  # the accepted window's own camera, before "+joint"
     focal_std_rel: float = float("nan")  # stage 2's sigma(fx) / fx from its covariance
     # Stage 2's sigma of each of INTRINSICS_STD (px for fx, fy, cx, cy) from its covariance;
     # () when unknown.
@@ -273,6 +270,18 @@ class PipelineError(Exception):
         # calibration that refused every candidate took the longest of all, and a median over
         # the journeys that succeeded hides it.
         self.timings_s: dict[str, float] = {}
+
+
+class NoTurnError(PipelineError):
+    """The journey has no turn to calibrate on and no camera was known. ``finding`` says what was
+    looked at; the reason goes on in the service's words (upload a journey with a turn first),
+    which ``signmap process`` replaces with its own (``--calibration``)."""
+
+    def __init__(self, finding: str):
+        super().__init__("calibrate", f"{finding}; a straight road cannot calibrate the camera. "
+                         "Upload a journey with a turn first, or supply a calibration for this "
+                         "camera_id")
+        self.finding = finding
 
 
 class BundleError(PipelineError):

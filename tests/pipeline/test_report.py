@@ -10,7 +10,7 @@ import numpy as np
 
 from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
-from app.pipeline.steps.calibrate import CalibrationWindow, self_calibrate
+from app.pipeline.steps.calibrate import CalibrationWindow, initial_camera, self_calibrate
 from app.pipeline.types import CameraModel, StageReport
 
 CAMERA = CameraModel(1242, 375, 959.0, 959.0, 621.0, 187.0, -0.37, 0.2)
@@ -34,26 +34,14 @@ def test_self_calibration_lists_every_candidate_it_tried():
     def map_window(window, start):
         return results[next(k for k, w in enumerate(windows) if w is window)]
 
-    calib = self_calibrate(windows, PipelineConfig(), map_window, width=1242, height=375,
-                           trials=trials)
+    calib = self_calibrate(windows, PipelineConfig(), map_window,
+                           start=initial_camera(1242, 375, PipelineConfig()), trials=trials)
     assert calib.windows == [(20, 50)]
     assert len(trials) == 3
     assert trials[0].startswith("frames 0-29: 10/30 registered") and "refused" in trials[0]
     assert trials[1].startswith("frames 10-39: 30/30 registered, 0.50 px") and "kept" in trials[1]
     assert trials[2] == ("frames 20-49: 30/30 registered, 0.20 px, fx 959.0, fx ± 0.12 %, "
                          "turns 60.0 deg: accepted, under 0.35 px")
-
-
-def test_a_candidate_measured_on_parts_of_its_points_says_how_far_they_disagree():
-    window = CalibrationWindow(np.arange(30), 15)
-    result = _result(0.2)
-    result.split_spread = {"depth": (19.18, 19.0, 2.5, 7.75, 0.0123, 0.02)}
-    trials: list[str] = []
-    self_calibrate([window], PipelineConfig(), lambda w, start: result, width=1242, height=375,
-                   trials=trials)
-    assert trials == ["frames 0-29: 30/30 registered, 0.20 px, fx 959.0, depth split fx 2.00 %, "
-                      "cx 2.5, cy 7.8 px, k1 0.0123 (fy 959.0, cx 621.0, cy 187.0, k1 -0.3700), "
-                      "turns 60.0 deg: accepted, under 0.35 px"]
 
 
 def test_stage_reports_round_trip_through_json():

@@ -166,3 +166,26 @@ def test_a_stage_that_fails_still_reports_how_long_it_took():
     assert set(err.value.timings_s) == {"turns", "calibrate"}
     assert err.value.timings_s["calibrate"] >= 0.05
     assert clock.timings_s == err.value.timings_s
+
+
+def test_progress_rises_within_the_calibrate_stage(turn_run):
+    # The calibrate stage takes most of a short journey's time: progress must not sit at its
+    # start until ego-motion begins.
+    calibrate = [f for stage, f in turn_run.stages if stage == "calibrate"]
+    assert calibrate == sorted(calibrate) and len(set(calibrate)) >= 3, calibrate
+
+
+def test_progress_rises_as_calibration_candidates_are_tried():
+    from app.pipeline.steps.calibrate import CalibrationWindow
+
+    seen: list[float] = []
+    clock = run._Clock(lambda stage, f, m="": seen.append(f),
+                       {"turns": 0.1, "calibrate": 0.6, "ego_motion": 0.3})
+    clock.finished("turns", 0.0)
+    candidates = run._CandidateProgress(clock)
+    for k in range(3):
+        candidates.trying(k, 3, CalibrationWindow(np.arange(22) + 10 * k, 20))
+        candidates.features_matched()
+        candidates.mapped(1, 1)
+    assert seen == sorted(seen) and len(set(seen)) == 7, seen
+    assert seen[0] == pytest.approx(0.1) and seen[-1] < 0.1 + 0.6  # within the stage

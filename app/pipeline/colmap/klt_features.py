@@ -5,8 +5,9 @@ SIFT extraction and matching.
 Consecutive frames of a car's video differ little, so a corner found once can be followed from frame
 to frame instead of being re-detected and matched by descriptor against every neighbour. One
 tracking step (OpenCV ``calcOpticalFlowPyrLK``, forward and backward) costs milliseconds where SIFT
-extraction plus sequential matching cost ~0.7 s per image here (turn-70, 2026-11-23); every pair of
-frames that share a track gets its correspondences for free. COLMAP then verifies the pairs
+extraction plus sequential matching cost ~0.7 s per image here (turn-70;
+docs/decisions/klt-ego-motion.md); every pair of frames that share a track gets its
+correspondences for free. COLMAP then verifies the pairs
 geometrically and maps them with the calibrated camera (``colmap.sfm``), exactly as with SIFT.
 
 Tracking runs on the original (distorted) images: the flow does not care about distortion, and

@@ -36,9 +36,7 @@ class MappingOptions:
     ba_function_tolerance: float = 1e-6
     aspect_prior_sigma: float = 0.0  # stage 2: prior fx = fy with this relative sigma (0: none)
     stage1_k2: bool = False  # stage 1 maps with k1 and k2 (COLMAP RADIAL), not k1 alone
-    split_spread: bool = False  # stage 2 again on parts of the points (``refine.split_spread``)
     stage2_max_iterations: int = 1000  # Ceres iterations each of stage 2's adjustments may take
-    stage2_refits: int = 0  # stage 2: adjustments again after its last filter
     stage2_probe: float = 0.03  # stage 2 again from fx x (1 +- this) when it fits better (0: off)
     stage2_probe_points: int = 1500  # points the probe's deciding fits see
 
@@ -87,7 +85,6 @@ _MAPPER = {
     "ba_global_frames_ratio": 1.5,
     "ba_global_points_ratio": 1.5,
     "random_seed": 0,
-    "use_robust_loss_on_prior_position": True,
     "mapper.random_seed": 0,
     "ba_refine_principal_point": False,
 }
@@ -123,7 +120,7 @@ EGO_MOTION_MAPPER = {
 
 def mapper_knobs(mapping: MappingOptions) -> dict[str, Any]:
     # COLMAP re-runs every bundle adjustment after filtering outliers up to 5 (global) / 2 (local)
-    # times; on our short windows the re-runs doubled the mapping time (turn-70, 2026-11-23), and
+    # times; on our short windows the re-runs doubled the mapping time (turn-70), and
     # calibration and sign errors stayed within the tests' and the quick bench's bars without them.
     return {"ba_global_max_refinements": mapping.ba_max_refinements,
             "ba_local_max_refinements": mapping.ba_max_refinements,

@@ -55,8 +55,7 @@ _FLAT = 1e8
 
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
                    function_tolerance: float, max_iterations: int,
-                   aspect_sigma: float = 0.0,
-                   constant_frames: tuple[int, ...] = (), threads: int = -1,
+                   aspect_sigma: float = 0.0, threads: int = -1,
                    covariance: bool = False) -> np.ndarray:
     """One bundle adjustment of ``rec`` in place; with ``covariance``, returns the standard
     deviations (6,) of fx, fy, cx, cy (px), k1, k2 that the solution's covariance gives (unit
@@ -75,8 +74,6 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    for frame_id in constant_frames:
-        config.set_constant_rig_from_world_pose(frame_id)
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
     problem = adjuster.problem
     # Keep the manifold and the parameter arrays alive in variables until solve() returns: a
@@ -122,8 +119,7 @@ def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
 
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, max_iterations: int = 1000,
-                          aspect_sigma: float = 0.0, refits: int = 0,
-                          constant_frames: tuple[int, ...] = (), threads: int = -1) -> np.ndarray:
+                          aspect_sigma: float = 0.0, threads: int = -1) -> np.ndarray:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
     the standard deviations (6,) of ``INTRINSICS_STD`` from COLMAP's covariance of its solution
     (nan where there is none).
@@ -136,122 +132,28 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
 
     ``function_tolerance``: Ceres stops when an iteration lowers the cost by less than this
     fraction. COLMAP's 0 ran both passes to 100 iterations: 7.7 s on turn-70's 22 images, 2.4 s
-    at 1e-6 with every intrinsic within 0.1 % of the same (2026-11-23). ``max_iterations``: the
+    at 1e-6 with every intrinsic within 0.1 % of the same. ``max_iterations``: the
     limit of each adjustment; a stage 1 far off can need more than 100 iterations down stage 2's
     shallow valley (tuning c0800 stopped at fx -8.3 % after 100, reached -0.05 % within 1000).
 
     ``aspect_sigma`` > 0 adds a prior fx = fy with that relative standard deviation.
-    ``refits``: adjustments (every intrinsic free) after the last filter, each filtered in turn:
-    the filter drops the outliers but not the pull they had on the camera (tuning c0838: fx
-    +2.2 %, +1.0 % after stage 2 ran again from its own result). One refit on a tuning half
-    helped that journey only (``PipelineConfig.calib_stage2_refits``, default 0).
-    ``constant_frames``: frames whose pose is held, the gauge of the parts of a ``merged``
-    reconstruction after the first (COLMAP's gauge fixes one connected part only).
     ``threads``: Ceres threads (-1: every core; 1 gives the same result on every run).
     """
     for cam in rec.cameras.values():
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
                    function_tolerance=function_tolerance, max_iterations=max_iterations,
-                   constant_frames=constant_frames, threads=threads)
+                   threads=threads)
     _filter_observations(pycolmap, rec, filter_max_error_px)
-    for _ in range(1 + refits):  # the second pass, then each refit: the same adjustment again
-        std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
-                             function_tolerance=function_tolerance,
-                             max_iterations=max_iterations, aspect_sigma=aspect_sigma,
-                             constant_frames=constant_frames, threads=threads, covariance=True)
-        _filter_observations(pycolmap, rec, filter_max_error_px)
+    std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
+                         function_tolerance=function_tolerance, max_iterations=max_iterations,
+                         aspect_sigma=aspect_sigma, threads=threads, covariance=True)
+    _filter_observations(pycolmap, rec, filter_max_error_px)
     return std
-
-
-def split_spread(pycolmap, rec, *, function_tolerance: float = 1e-6, max_iterations: int = 1000,
-                 aspect_sigma: float = 0.0, threads: int = -1) -> dict[str, np.ndarray]:
-    """How far stage 2 moves when it sees only part of ``rec``'s points (``rec`` is refined
-    already and left untouched): for each split, |a - b| (6,) of fx, fy, cx, cy (px), k1, k2
-    between stage 2 on one part and on the other. ``depth``: points nearer than the median (in
-    the first image that sees them) against the rest; ``track``: points seen by at most 3 images
-    against longer tracks; ``random``: by the parity of the point's id (what noise alone gives).
-
-    Stage 2's covariance assumes independent pixel noise. On tuning journeys of seeds 454-734 the
-    data preferred the wrong camera (stage 2 started from the true one went back to it; the
-    reprojection error was lower there by 70-1700 in chi-square) and parts of one window's
-    points disagreed by up to 60 px in cy and 9 % in fx where the covariance claimed 0.5 px and
-    0.3 % (2026-11-29): small systematic errors of the features, which one window cannot
-    average away. The parts' disagreement is a measure of that."""
-    depth, length = {}, {}
-    for point_id, point in rec.points3D.items():
-        first = point.track.elements[0]
-        depth[point_id] = (rec.image(first.image_id).cam_from_world() * point.xyz)[2]
-        length[point_id] = point.track.length()
-    if len(depth) < 20:
-        return {}
-    median = float(np.median(list(depth.values())))
-    splits = {"depth": lambda pid: depth[pid] < median, "track": lambda pid: length[pid] <= 3,
-              "random": lambda pid: pid % 2 == 0}
-    out = {}
-    for name, in_first in splits.items():
-        parts = []
-        for keep_first in (True, False):
-            part = pycolmap.Reconstruction(rec)
-            for point_id in list(depth):
-                if in_first(point_id) != keep_first:
-                    part.delete_point3D(point_id)
-            refine_all_intrinsics(pycolmap, part, function_tolerance=function_tolerance,
-                                  max_iterations=max_iterations, aspect_sigma=aspect_sigma,
-                                  threads=threads)
-            parts.append(np.asarray(next(iter(part.cameras.values())).params, float)[:6])
-        out[name] = np.abs(parts[0] - parts[1])
-    return out
 
 
 def _filter_observations(pycolmap, rec, max_error_px: float) -> None:
     pycolmap.ObservationManager(rec).filter_all_points3D(max_error_px, 1.5)
-
-
-def merged(pycolmap, recs: list) -> tuple[object, tuple[int, ...]]:
-    """One reconstruction holding the registered images and the points of every one of ``recs``
-    (separate parts, each in its own frame and scale), all seen by the first one's camera; image
-    names get their part's index as a prefix. Returns it and the first frame of every part after
-    the first, whose pose holds that part's gauge in ``refine_all_intrinsics``."""
-    out = pycolmap.Reconstruction()
-    camera = pycolmap.Camera(next(iter(recs[0].cameras.values())).todict())
-    camera.camera_id = 1
-    out.add_camera_with_trivial_rig(camera)
-    next_id, anchors = 1, []
-    for part, rec in enumerate(recs):
-        new_ids = {}
-        for image_id in sorted(rec.reg_image_ids()):
-            image = rec.image(image_id)
-            points2D = pycolmap.Point2DList([pycolmap.Point2D(p.xy) for p in image.points2D])
-            out.add_image_with_trivial_frame(
-                pycolmap.Image(name=f"{part}/{image.name}", points2D=points2D, camera_id=1,
-                               image_id=next_id), image.cam_from_world())
-            new_ids[image_id] = next_id
-            next_id += 1
-        if part > 0 and new_ids:
-            anchors.append(out.image(min(new_ids.values())).frame_id)
-        for point in rec.points3D.values():
-            track = pycolmap.Track()
-            for el in point.track.elements:
-                if el.image_id in new_ids:
-                    track.add_element(new_ids[el.image_id], el.point2D_idx)
-            if track.length() >= 2:
-                out.add_point3D(point.xyz, track, point.color)
-    return out, tuple(anchors)
-
-
-def held_camera_sse(pycolmap, rec, opencv_params: list[np.ndarray], *,
-                    clip_px: float = 4.0, max_iterations: int = 200,
-                    threads: int = -1) -> list[float]:
-    """For each OPENCV parameter vector: ``rec`` (left untouched) bundle-adjusted again with the
-    camera held at it, poses and points free; the sum of squared reprojection errors (px^2),
-    each error clipped at ``clip_px`` so that a few points far off do not decide. How well a
-    window's images fit a camera other than the one it calibrated (``calibrate.stored_or_own``)."""
-    out = []
-    for params in opencv_params:
-        errors = _errors_px(_held_fit(pycolmap, rec, params, max_iterations, threads, 0.0))
-        out.append(float(np.sum(np.minimum(np.nan_to_num(errors, nan=clip_px), clip_px) ** 2)))
-    return out
 
 
 def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: int,
@@ -270,8 +172,21 @@ def _held_fit(pycolmap, rec, params: np.ndarray, max_iterations: int, threads: i
                                  "ceres.solver_options.max_num_iterations": max_iterations,
                                  "ceres.solver_options.function_tolerance": function_tolerance,
                                  "ceres.solver_options.num_threads": threads})
-    pycolmap.bundle_adjustment(held, options)
+    _global_bundle_adjustment(pycolmap, held, options)
     return held
+
+
+def _global_bundle_adjustment(pycolmap, rec, options) -> None:
+    """What ``pycolmap.bundle_adjustment`` does (COLMAP's BundleAdjustmentController; the same
+    result to the bit), without its OptionManager: that resets glog to log everything to stderr,
+    which printed COLMAP's log without ``--verbose`` (``sfm._pycolmap`` sets it)."""
+    pycolmap.ObservationManager(rec).filter_observations_with_negative_depth()
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    rec.update_point_3d_errors()
 
 
 def _errors_px(rec) -> np.ndarray:
@@ -309,7 +224,7 @@ def _cauchy_cost(rec) -> float:
     """Stage 2's robust cost (Cauchy, 1 px) of ``rec``'s observations in front of their camera.
     Counting the few behind it as far off (27.6 each) hid the way out of tuning c0888's stuck
     structure on 1500 points: 5 such points at fx x 0.97 against 1 at its own camera
-    (bench/results/2026-11-30-cheaper-probe.md)."""
+    (docs/decisions/stage2-probe.md)."""
     errors = _errors_px(rec)
     return float(np.sum(np.log1p(errors[np.isfinite(errors)] ** 2)))
 
@@ -320,7 +235,7 @@ def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
                 threads: int = -1) -> tuple[object, list[float], np.ndarray | None]:
     """Stage 2 ends at the minimum of the structure stage 1 built; from a stage 1 13 % off that
     was 28 % short on a tuning window whose images fit the truth far better
-    (bench/results/2026-11-30-stage1-structure.md). So: hold the camera at its fx, fy times
+    (docs/decisions/stage2-probe.md). So: hold the camera at its fx, fy times
     1 - ``step`` and 1 + ``step`` and at itself, each in a bundle adjustment of poses and points
     (Cauchy, 1 px; stopping as stage 2's do at ``function_tolerance``: COLMAP's default 0 ran
     each fit to 200 iterations, 6 s on tuning c0846); when a probe costs less than the camera
@@ -329,9 +244,9 @@ def probe_focal(pycolmap, rec, *, step: float, max_moves: int,
 
     The three fits that decide see ``max_points`` of the window's points (``_thinned``): on
     turn-70's 7849 they cost 10 s, on 1500 under 2 s, and the ordering held (the held camera's
-    extra cost is a sum over points, so it shrinks with them but keeps its sign;
-    bench/results/2026-11-30-cheaper-probe.md). Returns the reconstruction, the scales moved by,
-    and the last ``refine``'s result (None if it never ran)."""
+    extra cost is a sum over points, so it shrinks with them but keeps its sign). Returns the
+    reconstruction, the scales moved by, and the last ``refine``'s result (None if it never
+    ran)."""
     moves: list[float] = []
     std = None
     for _ in range(max_moves):

@@ -43,20 +43,12 @@ class WindowRequest:
     image_names: list[str]
     camera: CameraModel
     calibrate: bool = False
-    use_position_priors: bool = False
     # Two of ``image_names`` to start the reconstruction from (None: COLMAP's choice, which favours
     # the most matched pair: neighbouring frames whose short forward baseline can fix a wrong
     # relative pose that bundle adjustment never leaves). ``more_init_pairs`` are tried next, in
     # order; COLMAP's choice comes last.
     init_pair: tuple[str, str] | None = None
     more_init_pairs: tuple[tuple[str, str], ...] = ()
-    # Write the final reconstruction to ``WindowResult.model_dir`` (for ``refine_jointly``).
-    keep_model: bool = False
-    # Fill ``WindowResult.keypoint_depths`` (for the joint alignment's scale ratios).
-    keypoint_depths: bool = False
-    # When the model leaves a run of at least this many images unregistered, map them as a
-    # model of their own (``WindowResult.others``); 0: never.
-    map_leftovers_min_images: int = 0
     # With ``calibrate``: when the model from ``camera`` registers fewer than ``retry_below``
     # images, map again from each of these focal lengths (px) in turn until one does; the model
     # that registered most is kept.
@@ -80,22 +72,10 @@ class WindowResult:
     n_input: int = 0
     error: str | None = None
     mapping_s: float = 0.0  # wall time COLMAP spent mapping (and refining) this window
-    model_dir: Path | None = None  # the reconstruction, when the request asked to keep it
-    # Per registered image (in ``image_names`` order): the indices (P,) of its keypoints that have
-    # a 3D point and their depths (P,) along its optical axis, model units. Two windows that map
-    # the same image from one database share its keypoints, so the depths' ratio is the ratio of
-    # the windows' scales (``steps.align``).
-    keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
     # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable),
     # and its sigma of each of ``types.INTRINSICS_STD`` (px for fx, fy, cx, cy).
     focal_std_rel: float = float("nan")
     intrinsics_std: tuple[float, ...] = ()
-    # Models of the images this one left unregistered (``WindowRequest.map_leftovers_min_images``),
-    # each in its own model frame and scale.
-    others: list["WindowResult"] = field(default_factory=list)
-    # With ``MappingOptions.split_spread``: stage 2's disagreement between parts of the points,
-    # per split (``refine.split_spread``).
-    split_spread: dict[str, tuple[float, ...]] = field(default_factory=dict)
     # The focal length (px) stage 1 started from when this is the mapping of a retry
     # (``WindowRequest.retry_focals_px``); nan: the request's own camera.
     retry_focal_px: float = float("nan")
@@ -117,10 +97,6 @@ class SfmJob:
     mapping: MappingOptions = field(default_factory=MappingOptions)
     process: ProcessOptions = field(default_factory=ProcessOptions)
     verbose: bool = False
-    # GPS positions (ENU metres) of the extracted images, by image name, and their 1-sigma noise
-    # (horizontal, vertical): pose priors that keep long windows free of monocular scale drift.
-    prior_enu: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    prior_std_m: tuple[float, float] = (0.5, 1.0)
     # Correspondences made elsewhere (KLT tracks) to import instead of extracting SIFT; then
     # ``extract_names`` must be empty and ``workdir`` gets a database of its own.
     imported: "ImportedFeatures | None" = None
@@ -143,14 +119,15 @@ class ImportedFeatures:
     camera: CameraModel | None
 
 
-def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
-            ) -> list[WindowResult]:
+def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None,
+            on_prepared: Callable[[], None] | None = None) -> list[WindowResult]:
     """Extract (or import) and match features, then map every window of ``job``, in child
     processes; one result per window.
 
     Windows are independent (each maps its own copy of the database), and COLMAP's incremental
     mapper keeps about one core busy (CPU time ~1.1x wall on turn-70): ``map_workers`` processes
-    map windows side by side. ``on_mapped(k, total)`` is called as the k-th window finishes."""
+    map windows side by side. ``on_prepared()`` is called when the features are matched,
+    ``on_mapped(k, total)`` as the k-th window finishes."""
     workers = max(1, min(job.process.map_workers, len(job.windows)))
     # The mapping tasks need no features: do not pickle the imported ones again for each.
     light = replace(job, extract_names=[], imported=None, process=replace(
@@ -158,6 +135,8 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None
     try:
         with colmap_pool(workers) as pool:
             timings_s = pool.submit(_prepare_in_child, job).result()
+            if on_prepared is not None:
+                on_prepared()
             t0 = time.perf_counter()
             futures = [pool.submit(_map_in_child, light, i) for i in range(len(job.windows))]
             for k, _ in enumerate(cf.as_completed(futures), start=1):
@@ -217,16 +196,6 @@ def _map_in_child(job: SfmJob, index: int) -> WindowResult:
     result = _map_window(pycolmap, job, job.workdir / "features.db", index, window)
     if window.calibrate:
         result = _retry_from_other_focals(pycolmap, job, index, window, result)
-    # A window that built no model already tried COLMAP's own initial pair last (``_map_window``).
-    run = leftover_run(window.image_names, result.image_names, window.map_leftovers_min_images)
-    if run and result.image_names:
-        # COLMAP's one model stopped short of the window's end (a real drive: frames 86-110 of a
-        # window left out, mapped whole by the next window): map what it left as a model of its own.
-        rest = _map_window(pycolmap, job, job.workdir / "features.db", index,
-                           replace(window, image_names=run, init_pair=None, more_init_pairs=()),
-                           suffix="rest")
-        if len(rest.image_names) >= 3:
-            result.others = [rest]
     result.mapping_s = round(time.perf_counter() - t0, 3)
     return result
 
@@ -238,7 +207,7 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
     Free-intrinsics mapping from a focal length far from the lens's (0.8 of the width for a
     99 deg lens whose focal is 0.37 of it) let the two-view bundle adjustment of the initial
     pair run off (k1 = 263) and nothing else registered; from 0.5 of the width the same window
-    registered 22 of 22 (corpus c0032, 2026-11-26)."""
+    registered 22 of 22 (corpus c0032)."""
     for focal_px in window.retry_focals_px:
         if len(result.image_names) >= window.retry_below:
             break
@@ -251,18 +220,6 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
         if len(again.image_names) > len(result.image_names):
             result = again
     return result
-
-
-def leftover_run(names: list[str], registered: list[str], min_images: int) -> list[str]:
-    """The longest run of consecutive ``names`` that are not ``registered``, if it has at least
-    ``min_images`` (0: never)."""
-    if min_images <= 0:
-        return []
-    done, best, run = set(registered), [], []
-    for name in names:
-        run = [] if name in done else run + [name]
-        best = run if len(run) > len(best) else best
-    return best if len(best) >= min_images else []
 
 
 def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
@@ -292,23 +249,7 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float
                               overlap=job.sift.overlap)
     pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu)
-    timings_s = {"extract": t1 - t0, "match": time.perf_counter() - t1}
-    _write_pose_priors(pycolmap, job, database)
-    return timings_s
-
-
-def _write_pose_priors(pycolmap, job: SfmJob, database: Path) -> None:
-    if not job.prior_enu:
-        return
-    h, v = job.prior_std_m
-    cov = np.diag([h * h, h * h, v * v])
-    with pycolmap.Database.open(database) as db:
-        for image in db.read_all_images():
-            if image.name in job.prior_enu:
-                db.write_pose_prior(pycolmap.PosePrior(
-                    corr_data_id=image.data_id, position=np.asarray(job.prior_enu[image.name]),
-                    position_covariance=cov,
-                    coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
+    return {"extract": t1 - t0, "match": time.perf_counter() - t1}
 
 
 def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
@@ -343,7 +284,6 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
                                num_threads=job.process.threads)
     pycolmap.geometric_verification(database, verifier_options=verifier,
                                     two_view_geometry_options=verify)
-    _write_pose_priors(pycolmap, job, database)
     return {"extract": t1 - t0, "match": time.perf_counter() - t1}
 
 
@@ -397,7 +337,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         pycolmap, "IncrementalPipelineOptions",
         presets.CALIBRATION_MAPPER if window.calibrate else presets.EGO_MOTION_MAPPER,
         **presets.mapper_knobs(job.mapping), image_names=list(window.image_names),
-        num_threads=job.process.threads, use_prior_position=window.use_position_priors)
+        num_threads=job.process.threads)
     empty = WindowResult([], np.zeros((0, 4, 4)), window.camera, n_input=len(window.image_names))
     # The chosen initial pairs first, then COLMAP's own choice (-1) if they lead nowhere.
     pairs = [(-1, -1)]
@@ -426,16 +366,15 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
         return empty
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
-    std, spread, moves, unprobed = None, {}, [], None
+    std, moves, unprobed = None, [], None
     if window.calibrate:
-        from app.pipeline.colmap.refine import probe_focal, refine_all_intrinsics, split_spread
+        from app.pipeline.colmap.refine import probe_focal, refine_all_intrinsics
 
         def stage2(rec) -> np.ndarray:
             return refine_all_intrinsics(
                 pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
                 max_iterations=job.mapping.stage2_max_iterations,
-                aspect_sigma=job.mapping.aspect_prior_sigma, refits=job.mapping.stage2_refits,
-                threads=job.process.threads)
+                aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
 
         std = stage2(rec)
         if job.mapping.stage2_probe > 0:
@@ -444,112 +383,21 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                 pycolmap, rec, step=job.mapping.stage2_probe, max_moves=3, refine=stage2,
                 max_points=job.mapping.stage2_probe_points, threads=job.process.threads)
             std = std if probed_std is None else probed_std
-        if job.mapping.split_spread:
-            spread = split_spread(pycolmap, rec,
-                                  function_tolerance=job.mapping.ba_function_tolerance,
-                                  max_iterations=job.mapping.stage2_max_iterations,
-                                  aspect_sigma=job.mapping.aspect_prior_sigma,
-                                  threads=job.process.threads)
-    result = _window_result(rec, window.image_names, stage1 if window.calibrate else None,
-                            with_depths=window.keypoint_depths)
-    result.split_spread = {k: tuple(float(x) for x in v) for k, v in spread.items()}
+    result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
     result.probe_moves = tuple(moves)
     result.unprobed_camera = unprobed if moves else None
     if std is not None:
         result.intrinsics_std = tuple(float(v) for v in std)
         result.focal_std_rel = float(std[0]) / result.camera.fx
-    if window.keep_model:
-        result.model_dir = out / "model"
-        result.model_dir.mkdir()
-        rec.write(result.model_dir)
     return result
 
 
-def refine_jointly(parts: list[WindowResult], workdir: Path, mapping: MappingOptions,
-                   process: ProcessOptions, verbose: bool = False) -> WindowResult:
-    """Stage 2 over the kept reconstructions of several windows at once, with one camera (the
-    first part's): more rotation and more points than one window pins down. The result lists
-    the images as ``<part>/<name>``; its poses are in each part's own frame."""
-    job = SfmJob(image_dir=workdir, workdir=workdir, extract_names=[], windows=[],
-                 mapping=mapping, process=process, verbose=verbose)
-    try:
-        with colmap_pool(1) as pool:
-            return pool.submit(_refine_jointly_in_child, job,
-                               [p.model_dir for p in parts], sum(p.n_input for p in parts)
-                               ).result()
-    except cf.process.BrokenProcessPool as exc:
-        raise PipelineError("colmap", "COLMAP aborted the process (see the worker log) "
-                                      "while refining windows jointly") from exc
-
-
-def held_camera_fit(window: WindowResult, cameras: list[CameraModel], workdir: Path,
-                    mapping: MappingOptions, process: ProcessOptions,
-                    verbose: bool = False) -> list[float]:
-    """For each of ``cameras``: the kept model of ``window`` (``keep_model``) bundle-adjusted
-    with that camera held, its sum of squared reprojection errors (px^2,
-    ``refine.held_camera_sse``)."""
-    job = SfmJob(image_dir=workdir, workdir=workdir, extract_names=[], windows=[],
-                 mapping=mapping, process=process, verbose=verbose)
-    try:
-        with colmap_pool(1) as pool:
-            return pool.submit(_held_camera_fit_in_child, job, window.model_dir, cameras).result()
-    except cf.process.BrokenProcessPool as exc:
-        raise PipelineError("colmap", "COLMAP aborted the process (see the worker log) "
-                                      "while fitting a window to the stored camera") from exc
-
-
-def _held_camera_fit_in_child(job: SfmJob, model_dir: Path,
-                              cameras: list[CameraModel]) -> list[float]:
-    from app.pipeline.colmap.refine import held_camera_sse
-
-    pycolmap = _pycolmap(job)
-    params = [np.asarray(_colmap_camera(pycolmap, c).params, dtype=float) for c in cameras]
-    return held_camera_sse(pycolmap, pycolmap.Reconstruction(model_dir), params,
-                           threads=job.process.threads)
-
-
-def _refine_jointly_in_child(job: SfmJob, model_dirs: list[Path], n_input: int) -> WindowResult:
-    from app.pipeline.colmap.refine import merged, refine_all_intrinsics
-
-    pycolmap = _pycolmap(job)
-    t0 = time.perf_counter()
-    rec, anchors = merged(pycolmap, [pycolmap.Reconstruction(d) for d in model_dirs])
-    refine_all_intrinsics(pycolmap, rec, function_tolerance=job.mapping.ba_function_tolerance,
-                          max_iterations=job.mapping.stage2_max_iterations,
-                          aspect_sigma=job.mapping.aspect_prior_sigma, constant_frames=anchors,
-                          refits=job.mapping.stage2_refits, threads=job.process.threads)
-    result = _window_result(rec, [im.name for im in rec.images.values()], None)
-    result.n_input = n_input
-    result.mapping_s = round(time.perf_counter() - t0, 3)
-    return result
-
-
-def _window_result(rec, image_names: list[str], stage1: CameraModel | None, *,
-                   with_depths: bool = False) -> WindowResult:
+def _window_result(rec, image_names: list[str], stage1: CameraModel | None) -> WindowResult:
     names, T = registered_poses(rec, image_names)
     camera = camera_model(next(iter(rec.cameras.values())))
     return WindowResult(names, T, camera, stage1,
                         float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                        len(image_names),
-                        keypoint_depths=keypoint_depths(rec, names) if with_depths else None)
-
-
-def keypoint_depths(rec, names: list[str]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For each image of ``names`` (registered in ``rec``): (indices of its keypoints observing a
-    3D point, their depths in its camera frame), arrays of shape (P,)."""
-    by_name = {im.name: im for im in rec.images.values()}
-    xyz = {pid: p.xyz for pid, p in rec.points3D.items()}
-    out = []
-    for name in names:
-        im = by_name[name]
-        idx = np.asarray(im.get_observation_point2D_idxs(), dtype=int)
-        if idx.size == 0:
-            out.append((idx, np.zeros(0)))
-            continue
-        p_model = np.array([xyz[im.points2D[i].point3D_id] for i in idx])  # (P, 3)
-        T_cam_model = np.asarray(im.cam_from_world().matrix())  # (3, 4)
-        out.append((idx, p_model @ T_cam_model[2, :3] + T_cam_model[2, 3]))
-    return out
+                        len(image_names))
 
 
 def registered_poses(rec, names: list[str]) -> tuple[list[str], np.ndarray]:

@@ -1,12 +1,13 @@
 """SIFT features shared between a journey's calibration candidates.
 
-Candidate windows around one turn share about half their frames (tuning halves of seeds 832-895,
-2026-11-29), and SIFT extraction is two thirds of a candidate's time (c0852: 14-15 s of ~22 s per
-window, one thread). So every image is extracted once, into the journey's cache database, and each
-candidate's own database is written from it: the same rows COLMAP's extractor writes (one camera,
-one trivial rig, one frame per image, ids 1..n in the order of the names), so matching and
-mapping see exactly what they saw when each candidate extracted its own
-(``tests/pipeline/test_sift_cache.py`` compares the two databases table by table).
+Candidate windows around one turn share about half their frames (tuning halves of seeds 832-895;
+docs/decisions/calib-sift-features.md), and SIFT extraction is two thirds of a candidate's time
+(c0852: 14-15 s of ~22 s per window, one thread). So every image is extracted once, into the
+journey's cache database, and each candidate's own database is written from it: the same rows
+COLMAP's extractor writes (one camera, one trivial rig, one frame per image, ids 1..n in the order
+of the names), so matching and mapping see exactly what they saw when each candidate extracted its
+own (``tests/pipeline/calibration/test_sift_cache.py`` compares the two databases table by
+table).
 
 This module reads and writes COLMAP's SQLite schema directly: pycolmap has no call that copies an
 image's features between databases.

@@ -46,13 +46,12 @@ class StageSfm:
     runs once: a calibration candidate is a stage of its own."""
 
     def __init__(self, stage: str, workdir: Path, journey: Journey, frame_idx: np.ndarray, *,
-                 step: int, front_end: str, config: PipelineConfig, xyz_gps: np.ndarray,
-                 verbose: bool, feature_cache: Path | None = None):
+                 step: int, front_end: str, config: PipelineConfig, verbose: bool,
+                 feature_cache: Path | None = None):
         self.stage, self.workdir, self.journey, self.step = stage, workdir, journey, step
         self.feature_cache = feature_cache  # SIFT shared with other stages (``sfm.SfmJob``)
         self.front_end, self.config, self.verbose = front_end, config, verbose
         self.frame_idx = np.asarray(frame_idx, int)
-        self.priors = {journey.frames[i].path.name: tuple(xyz_gps[i]) for i in self.frame_idx}
         self._lock = threading.Lock()
         self._features: Correspondences | None = None
 
@@ -78,9 +77,11 @@ class StageSfm:
         return Correspondences([], imported)
 
     def run(self, requests: list[sfm.WindowRequest], camera: CameraModel | None, *,
-            on_mapped: Callable[[int, int], None] | None = None) -> list[sfm.WindowResult]:
+            on_mapped: Callable[[int, int], None] | None = None,
+            on_prepared: Callable[[], None] | None = None) -> list[sfm.WindowResult]:
         """Map ``requests``; ``camera`` None: intrinsics unknown (imported pairs are verified
-        without them). ``on_mapped(k, total)`` is called as windows finish."""
+        without them). ``on_prepared()`` is called when the features are matched,
+        ``on_mapped(k, total)`` as windows finish."""
         cfg = self.config
         features = self.correspondences()
         extract, imported = features.extract_names, features.imported
@@ -95,25 +96,11 @@ class StageSfm:
                               else cfg.sift_first_octave),
                 overlap=cfg.match_overlap),
             mapping=_mapping(cfg), process=_process(cfg),
-            verbose=self.verbose, prior_enu=self.priors,
-            prior_std_m=(cfg.gps_sigma_m, cfg.gps_alt_sigma_m), imported=imported,
-            feature_cache=self.feature_cache)
-        return sfm.run_sfm(job, on_mapped=on_mapped)
-
-    def refine_jointly(self, parts: list[sfm.WindowResult]) -> sfm.WindowResult:
-        """Stage 2 over the kept reconstructions ``parts`` at once (``sfm.refine_jointly``)."""
-        return sfm.refine_jointly(parts, self.workdir, _mapping(self.config),
-                                  _process(self.config), self.verbose)
+            verbose=self.verbose, imported=imported, feature_cache=self.feature_cache)
+        return sfm.run_sfm(job, on_mapped=on_mapped, on_prepared=on_prepared)
 
     def _gray(self, path: Path) -> np.ndarray:
         return read_gray(path, self.stage)
-
-
-def held_camera_fit(window: sfm.WindowResult, cameras: list[CameraModel], *,
-                    config: PipelineConfig, workdir: Path, verbose: bool = False) -> list[float]:
-    """``sfm.held_camera_fit`` with the journey's COLMAP settings."""
-    return sfm.held_camera_fit(window, cameras, workdir, _mapping(config), _process(config),
-                               verbose)
 
 
 # JPEG decodes at a half, quarter or eighth of the size for a fraction of the time: the reductions
@@ -136,9 +123,7 @@ def _mapping(cfg: PipelineConfig) -> MappingOptions:
                           ba_function_tolerance=cfg.ba_function_tolerance,
                           aspect_prior_sigma=cfg.calib_aspect_prior_sigma,
                           stage1_k2=cfg.calib_stage1_k2,
-                          split_spread=cfg.calib_split_spread,
                           stage2_max_iterations=cfg.calib_stage2_max_iterations,
-                          stage2_refits=cfg.calib_stage2_refits,
                           stage2_probe=cfg.calib_stage2_probe,
                           stage2_probe_points=cfg.calib_stage2_probe_points)
 
@@ -147,6 +132,6 @@ def _process(cfg: PipelineConfig) -> ProcessOptions:
     # Threads change COLMAP's results: verification writes pairs in the order they finish (and
     # that order feeds the mapper), and bundle adjustments sum in thread order. One calibration
     # window accepted at fx +0.14 % on one run was at +0.09 % on the next; a window of another
-    # journey was refused on one run and accepted on another (2026-11-25).
+    # journey was refused on one run and accepted on another.
     return ProcessOptions(threads=1 if cfg.colmap_reproducible else cfg.colmap_threads,
                           map_workers=cfg.colmap_map_workers)

@@ -4,7 +4,7 @@ A monocular reconstruction has one unknown scale; GPS measures the metres. Where
 collapsed part of a window's translation (the cameras of its first half almost still, the rest
 moving), no single scale fits, and the intrinsics stage 2 then pins fit that structure, not the
 lens: tuning c0838, fx +1.9 %, first-third chords 0.4x and last-third 17x the middle's against
-the true centres (bench/results/2026-11-30-path-scale.md).
+the true centres (docs/decisions/calib-path-scale.md).
 """
 
 from __future__ import annotations

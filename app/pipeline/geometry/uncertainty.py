@@ -6,17 +6,18 @@ detections on fixed poses: a few centimetres, while the real errors are tenths o
 sign inherits the error of the window alignment that placed its poses: the GPS noise the Umeyama
 fit averages (``alignment_rms_m`` over ``n`` fixes) and the part of the GPS error it cannot
 average because it is common to the whole window (a receiver's slowly drifting bias, multipath
-along a street): ``georef_floor_m`` per horizontal axis, plus ``bias_ratio`` times the
-alignment's own residual RMS and ``bias_quad_per_m`` times its square, twice that vertically (GPS
+along a street): ``georef_floor_m`` per horizontal axis, plus ``bias_quad_per_m`` times the square of the
+alignment's own residual RMS, twice that vertically (GPS
 altitude is about twice as noisy). The square term is there because the common error grows faster
 than the scatter: a 0.3 m receiver wanders by a few centimetres more than its alignment shows, a
-2-3 m phone by metres (a term linear in the residual cannot fit both on the corpus). The
+2-3 m phone by metres (a term linear in the residual cannot fit both on the corpus, and fitted to 0 beside the
+square: docs/decisions/sign-georef-bias-ratio.md). The
 common part cannot be seen inside one window, but it grows with the receiver's noise (and when the
 bundle states the receiver's accuracy, the floor is at least that: ``georef_floor_m``): on the
 corpus, journeys whose fixes scatter by 2 m also wander by metres (phones, multipath), while an
 OXTS-like receiver's 0.3 m comes with a bias of tenths. All enter as an isotropic term; the floor,
-the ratio and the gain on the averaged noise are knobs of ``PipelineConfig`` chosen on the
-corpus's tuning half (``bench/uncertainty_fit.py``).
+the square term and the gain on the averaged noise are knobs of ``PipelineConfig`` chosen on the
+corpus's tuning half (docs/decisions/sign-uncertainty.md).
 """
 
 from __future__ import annotations
@@ -51,32 +52,31 @@ class GeorefTerms:
         residual_m = alignment_rms_m if window_rms_m is None else window_rms_m
         return GeorefTerms(alignment_rms_m**2 / max(n_fixes, 1), 1.0, residual_m**2)
 
-    def horizontal_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0,
+    def horizontal_m2(self, floor_m: float, noise_gain: float,
                       bias_quad_per_m: float = 0.0) -> float:
         """Variance per horizontal axis (m^2) these terms add, weighed by the knobs
         (``georef_horizontal_m2``)."""
         return float(georef_horizontal_m2(self.averaged_noise_m2, self.floor_weight,
-                                          self.residual_m2, floor_m, noise_gain, bias_ratio,
+                                          self.residual_m2, floor_m, noise_gain,
                                           bias_quad_per_m))
 
-    def cov_m2(self, floor_m: float, noise_gain: float, bias_ratio: float = 0.0,
+    def cov_m2(self, floor_m: float, noise_gain: float,
                bias_quad_per_m: float = 0.0) -> np.ndarray:
         """(3, 3) ENU covariance; altitude counts twice the horizontal error."""
-        h = self.horizontal_m2(floor_m, noise_gain, bias_ratio, bias_quad_per_m)
+        h = self.horizontal_m2(floor_m, noise_gain, bias_quad_per_m)
         return np.diag([h, h, 4.0 * h])
 
 
 def georef_horizontal_m2(averaged_noise_m2, floor_weight, residual_m2, floor_m: float,
-                         noise_gain: float, bias_ratio: float, bias_quad_per_m: float):
+                         noise_gain: float, bias_quad_per_m: float):
     """Variance per horizontal axis (m^2) of ``GeorefTerms`` fields (scalars, or arrays of many
-    signs' terms, as the knob fit in ``bench/uncertainty_fit.py`` passes them) weighed by the
-    knobs. The common error of a pass with residual ``r`` is ``bias_ratio * r + bias_quad_per_m
-    * r^2``; over several passes ``r`` is their weighted RMS residual (exact when they agree)."""
+    signs' terms, as the bench's knob fit passes them) weighed by the
+    knobs. The common error of a pass with residual ``r`` is ``bias_quad_per_m * r^2``; over several passes ``r`` is their weighted RMS residual (exact when they agree)."""
     floor_weight = np.asarray(floor_weight, float)
     residual_m2 = np.asarray(residual_m2, float)
     rms_m = np.sqrt(np.divide(residual_m2, floor_weight, out=np.zeros_like(residual_m2),
                               where=floor_weight > 0))
-    common_m = bias_ratio * rms_m + bias_quad_per_m * rms_m**2
+    common_m = bias_quad_per_m * rms_m**2
     return noise_gain * np.asarray(averaged_noise_m2, float) + floor_weight * (floor_m**2
                                                                               + common_m**2)
 

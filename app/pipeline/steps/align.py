@@ -26,7 +26,6 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from app.pipeline.geometry.pose_interpolation import fill_skipped
 from app.pipeline.geometry.similarity import Sim3, align_trajectory
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.steps.sign_tracks import SignTrack
@@ -83,9 +82,6 @@ class JointSigmas:
     centre_m: float = 0.03
     rotation_deg: float = 0.2
     roll_deg: float = 1.0
-    # Least error of the log scale ratio two windows' depths of the same keypoints give
-    # (``scale_ratio``); None: the windows' scales are tied by their shared camera centres only.
-    scale_ratio: float | None = None
 
 
 # The robust loss (soft L1) is quadratic up to this many sigmas: a window whose reconstruction
@@ -179,43 +175,6 @@ def _shared_rows(a: WindowPoses, b: WindowPoses) -> tuple[np.ndarray, np.ndarray
     return rows_a, rows_b
 
 
-@dataclass(frozen=True)
-class ScaleRatio:
-    """``log(scale_a / scale_b)`` of two windows' model -> world similarities, from the depths
-    both give the same keypoints of the frames they share, and its 1-sigma error."""
-
-    log_ratio: float
-    sigma: float
-    n: int
-
-
-def scale_ratio(a: WindowPoses, b: WindowPoses, min_points: int = 20) -> ScaleRatio | None:
-    """The scale ratio of windows ``a`` and ``b`` (None when they share too few keypoints).
-
-    A keypoint of a shared frame at depth d_a in ``a``'s model and d_b in ``b``'s is at
-    s_a d_a = s_b d_b in the world, so log(s_a / s_b) = log(d_b / d_a): a median over every
-    shared keypoint, with the error of a median of that spread (observations of one 3D point in
-    several shared frames are not independent: the count is of keypoints per frame / frames)."""
-    if a.keypoint_depths is None or b.keypoint_depths is None:
-        return None
-    rows_a, rows_b = _shared_rows(a, b)
-    logs = []
-    for ra, rb in zip(rows_a, rows_b):
-        idx_a, d_a = a.keypoint_depths[ra]
-        idx_b, d_b = b.keypoint_depths[rb]
-        _, ka, kb = np.intersect1d(idx_a, idx_b, assume_unique=True, return_indices=True)
-        ok = (d_a[ka] > 0) & (d_b[kb] > 0)
-        logs.append(np.log(d_b[kb][ok] / d_a[ka][ok]))
-    logs = np.concatenate(logs) if logs else np.zeros(0)
-    if len(logs) < min_points:
-        return None
-    median = float(np.median(logs))
-    spread = 1.4826 * float(np.median(np.abs(logs - median)))  # MAD -> Gaussian sigma
-    # A median's standard error is sqrt(pi / 2) = 1.2533 times the mean's.
-    independent = max(1.0, len(logs) / max(1, len(rows_a)))
-    return ScaleRatio(median, 1.2533 * spread / np.sqrt(independent), len(logs))
-
-
 def _linked_groups(poses: list[WindowPoses], min_shared: int,
                    linkable: list[bool] | None = None) -> list[list[int]]:
     """Indices of ``poses`` grouped by chains of windows sharing >= ``min_shared`` frames; a
@@ -248,9 +207,7 @@ class _JointProblem:
     translation). Residuals, each divided by its sigma: (a) camera centres vs GPS, a frame's fix
     weighted 1/sqrt(number of windows posing it) so a shared frame counts once; (b) per frame
     posed by two windows, their world camera centres and rotations agree; (c) a window whose
-    roll about its road line is unobserved keeps its independent roll; (d) with
-    ``sigmas.scale_ratio``, two linked windows' scales keep the ratio of the depths they give the
-    same keypoints (``scale_ratio``).
+    roll about its road line is unobserved keeps its independent roll.
     """
 
     def __init__(self, windows: list[AlignedWindow], xyz_gps: np.ndarray, sigmas: JointSigmas,
@@ -271,14 +228,6 @@ class _JointProblem:
         self.pairs = [p for p in self.pairs if len(p[2])]
         self.roll_axes = [(k, _line_direction(w.T_world_cam[:, :3, 3]))
                           for k, w in enumerate(windows) if w.info.get("degenerate")]
-        # (i, j, log(s_i / s_j) from shared depths, its sigma) per linked pair that has one.
-        self.ratios = []
-        if sigmas.scale_ratio is not None:
-            for i, j, _, _ in self.pairs:
-                r = scale_ratio(windows[i].poses, windows[j].poses)
-                if r is not None:
-                    self.ratios.append((i, j, r.log_ratio, max(r.sigma, sigmas.scale_ratio)))
-        self.log_scale = [np.log(w.sim.scale) for w in windows]
 
     def sims(self, x: np.ndarray) -> list[Sim3]:
         """Model -> world similarity of every window for the corrections x (7 * n_windows,)."""
@@ -305,9 +254,6 @@ class _JointProblem:
         dx = x.reshape(-1, 7)
         parts.append(np.array([dx[k, :3] @ u for k, u in self.roll_axes])
                      / np.radians(self.sigmas.roll_deg))
-        parts.append(np.array([(dx[i, 6] + self.log_scale[i] - dx[j, 6] - self.log_scale[j]
-                                - log_ratio) / sigma
-                               for i, j, log_ratio, sigma in self.ratios]))
         return np.concatenate(parts)
 
     def jac_sparsity(self) -> sparse.lil_matrix:
@@ -318,7 +264,6 @@ class _JointProblem:
         blocks = [(3 * len(c), (k,)) for k, c in enumerate(self.centres_model)]
         blocks += [(6 * len(rows_i), (i, j)) for i, j, rows_i, _ in self.pairs]
         blocks += [(1, (k,)) for k, _ in self.roll_axes]
-        blocks += [(1, (i, j)) for i, j, _, _ in self.ratios]
         out = sparse.lil_matrix((sum(n for n, _ in blocks), 7 * len(self.windows)), dtype=int)
         row = 0
         for n, ks in blocks:
@@ -388,17 +333,14 @@ class TrackPoses:
 
 def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndarray, *,
                 mode: str, margin: int, min_frames: int, local_weight: float = 1.0,
-                fill_gap_frames: int = 0, trusted: np.ndarray | None = None
-                ) -> TrackPoses | None:
+                trusted: np.ndarray | None = None) -> TrackPoses | None:
     """Poses for a sign's frames. ``full``: from the window that reconstructed most of them,
     completed by the windows aligned jointly with it; ``short``: that window alone, aligned again
     to the GPS around the sign (the paper's short trajectories); ``local``: the ``full`` poses,
     their chain aligned again to the GPS around the sign (so a sign spanning two windows keeps
     all its frames), that correction taken ``local_weight`` of the way (``Sim3.partial``): over
     a few seconds the GPS fixes scale about as well as the reconstruction holds it, so the best
-    estimate lies between the two. ``fill_gap_frames`` (full and local): the track's frames the
-    ego-motion skipped get poses interpolated between posed frames at most that many apart
-    (``geometry.pose_interpolation``; 0: none). ``trusted`` (N,) bool over the journey's frames:
+    estimate lies between the two. ``trusted`` (N,) bool over the journey's frames:
     those whose GPS position may align the frames around the sign (None: all)."""
     def coverage(w: AlignedWindow) -> int:
         return int(np.isin(track.frame_idx, w.poses.frame_idx).sum())
@@ -407,12 +349,11 @@ def track_poses(track: SignTrack, windows: list[AlignedWindow], xyz_gps: np.ndar
     if best is None or coverage(best) < 2:
         return None
     if mode == "full":
-        return _chained_poses(track, best, windows, fill_gap_frames)
+        return _chained_poses(track, best, windows)
     # The poses aligned again (``T_from_cam``: the chain's world poses, or the window's model
     # poses), and those already placed, which stand when they cannot be aligned again.
     if mode == "local":
-        frame_idx, T_world_cam = fill_skipped(*_chain_trajectory(best, windows),
-                                              track.frame_idx, fill_gap_frames)
+        frame_idx, T_world_cam = _chain_trajectory(best, windows)
         T_from_cam, start_rotation = T_world_cam, np.eye(3)  # in the world: keep the chain's roll
     else:
         frame_idx, T_world_cam = best.poses.frame_idx, best.T_world_cam
@@ -458,13 +399,12 @@ def _chain_trajectory(best: AlignedWindow, windows: list[AlignedWindow]
     return frame_idx, np.concatenate([w.T_world_cam for w in chain])[first]
 
 
-def _chained_poses(track: SignTrack, best: AlignedWindow, windows: list[AlignedWindow],
-                   fill_gap_frames: int = 0) -> TrackPoses:
+def _chained_poses(track: SignTrack, best: AlignedWindow,
+                   windows: list[AlignedWindow]) -> TrackPoses:
     """Poses of the track's frames from ``best`` and, for frames it did not pose, from the other
     windows jointly aligned with it (they agree on shared frames to millimetres, so a sign may
     span two windows of a chain)."""
-    frame_idx, T_world_cam = fill_skipped(*_chain_trajectory(best, windows), track.frame_idx,
-                                          fill_gap_frames)
+    frame_idx, T_world_cam = _chain_trajectory(best, windows)
     keep = np.isin(track.frame_idx, frame_idx)
     rows = np.searchsorted(frame_idx, track.frame_idx[keep])
     return TrackPoses(keep, T_world_cam[rows], *_fit(best.info), best.info["rms_m"])

@@ -13,11 +13,10 @@ tried, strongest turn first, and judged by what a wrong calibration cannot fake:
 registered and a small stage-2 reprojection error (a wrong minimum leaves ~0.7 px, a right one
 ~0.2 px on sharp images). The first candidate under ``calib_accept_reprojection_px`` wins when it
 stands alone (``_why_not_alone``: it turns enough and contradicts no window as sharp kept before
-it); otherwise, above that error, or when stage 2's covariance leaves its fx looser than
-``calib_max_focal_std`` (but within ``calib_agreement_max_focal_std``), a candidate needs a second
-window of other frames that lands on the same camera. A window that registers too few frames from
-the first focal guess is mapped again from others (``calib_retry_focal_factors``, in
-``colmap.sfm``, where its features already are).
+it); otherwise, above that error, a candidate needs a second window of other frames that lands on
+the same camera. One whose fx stage 2's covariance leaves looser than ``calib_max_focal_std`` is
+refused. A window that registers too few frames from the first focal guess is mapped again from
+others (``calib_retry_focal_factors``, in ``colmap.sfm``, where its features already are).
 Only when no ordinary candidate ended the search, a wide curve gets one window spanning all of it
 (``calib_long_window_max_m``). When none calibrated, two windows of one road that agree, each
 turning enough and fitting well (``calib_shared_road_max_px``), are the last resort. Anything
@@ -27,7 +26,7 @@ else is refused with every candidate's reason.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
@@ -37,7 +36,7 @@ from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.path_scale import scale_spread
 from app.pipeline.steps.turns import TurnWindow
-from app.pipeline.types import Calibration, CameraModel, PipelineError
+from app.pipeline.types import Calibration, CameraModel, NoTurnError, PipelineError
 
 log = logging.getLogger(__name__)
 STAGE = "calibrate"
@@ -45,9 +44,9 @@ STAGE = "calibrate"
 # Candidate windows as offsets of their start from the turn vertex, in units of the window's span:
 # centred first, then shifted towards the approach and the exit of the turn. A window centred on
 # the turn is mostly rotation with little baseline, and stage 2 then fell into wrong minima
-# (turn-70, 2026-11-23); a window as long as the turn's approach or exit mixes in baseline. The
+# (turn-70); a window as long as the turn's approach or exit mixes in baseline. The
 # last two (ending at the vertex, starting at it) are reached only when no earlier window was
-# sharp or confirmed by another: a 5 Hz journey's one right window was its fourth (2026-11-25).
+# sharp or confirmed by another: a 5 Hz journey's one right window was its fourth.
 CANDIDATE_OFFSETS = (-0.5, -0.67, -0.33, -0.83, -0.17, -1.0, 0.0)
 
 
@@ -94,12 +93,11 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
 
     ``s_m`` (N,): metres travelled at each frame (``turns.track_length_m``); ``rot_deg`` (N,):
     heading change accumulated up to each frame (``turns.cumulative_rotation_deg``). A window spans
-    ``calib_window_m`` of road beyond its turn's curve (up to ``calib_window_max_m``), or more where
-    frames are so far apart that it would hold fewer than ``calib_window_min_frames``; its
-    ``calib_images`` frames are spread by distance and heading change, not by frame count, so
-    capture rate, speed and stops do not change what a window sees (a fixed 44 frames
-    spanned 13 m at 20 Hz and 6 m/s, where only 3 of 22 images registered, and 105 m at 5 Hz and
-    12 m/s; 2026-11-24)."""
+    ``calib_window_m`` of road, or more where frames are so far apart that it would hold fewer
+    than ``calib_window_min_frames``; its ``calib_images`` frames are spread by distance and
+    heading change, not by frame count, so capture rate, speed and stops do not change what a
+    window sees (a fixed 44 frames spanned 13 m at 20 Hz and 6 m/s, where only 3 of 22 images
+    registered, and 105 m at 5 Hz and 12 m/s)."""
     s_m = np.asarray(s_m, float)
     rot_deg = np.zeros_like(s_m) if rot_deg is None else np.asarray(rot_deg, float)
     ranked = sorted(turns, key=lambda t: -max(abs(t.angle_deg), t.rotation_deg))
@@ -109,8 +107,7 @@ def candidate_windows(turns: list[TurnWindow], s_m: np.ndarray, cfg: PipelineCon
         for turn in ranked:
             moving = np.diff(s_m[turn.start:turn.end])
             step_m = float(np.median(moving[moving > 0])) if np.any(moving > 0) else 0.0
-            span_m = min(max(min(cfg.calib_window_m + turn.curve_m, cfg.calib_window_max_m),
-                             (cfg.calib_window_min_frames - 1) * step_m),
+            span_m = min(max(cfg.calib_window_m, (cfg.calib_window_min_frames - 1) * step_m),
                          float(s_m[-1] - s_m[0]))
             window = _new_window(s_m, rot_deg, s_m[turn.vertex] + offset * span_m, span_m,
                                  cfg.calib_images, turn.vertex, cfg, seen)
@@ -130,7 +127,8 @@ def _whole_curve_windows(ranked: list[TurnWindow], s_m: np.ndarray, rot_deg: np.
     one ended the search: one per wide curve, centred on it and spanning all of it plus
     ``calib_window_m``, with ``calib_long_window_images`` frames. A window of fixed length sees
     35-46 deg of a 45-60 m radius turn, and stage 2 leaves its fx loose; tried first, such windows
-    fell into wrong minima (2026-11-25-calib-windows), so they come after every ordinary one."""
+    fell into wrong minima (docs/decisions/calib-whole-curve.md), so they come after every
+    ordinary one."""
     if cfg.calib_long_window_max_m <= 0:
         return []
     out = []
@@ -168,11 +166,6 @@ def initial_camera(width: int, height: int, cfg: PipelineConfig,
     return _stage1_start(width, height, f, 0.0)
 
 
-def seeded_start(camera: CameraModel) -> CameraModel:
-    """Stage-1 starting point taken from a candidate's camera: its mean focal length and k1."""
-    return _stage1_start(camera.width, camera.height, 0.5 * (camera.fx + camera.fy), camera.k1)
-
-
 def _stage1_start(width: int, height: int, f: float, k1: float) -> CameraModel:
     """What stage 1 can start from: one focal length, k1, the principal point centred as stage 1
     holds it."""
@@ -189,7 +182,7 @@ def rotation_covered_deg(T_model_cam: np.ndarray) -> float:
 
 
 # Pixels of real sensors are square to a few per cent. The wrong minima stage 2 falls into from a
-# warped stage-1 reconstruction had fx/fy of 1.13-1.16 (turn-70, 2026-11-23) at reprojection errors
+# warped stage-1 reconstruction had fx/fy of 1.13-1.16 (turn-70) at reprojection errors
 # (~0.55 px) that pass the error gate: this bound is what rejects them.
 MAX_ASPECT_DEVIATION = 0.08
 
@@ -218,11 +211,8 @@ def _poor_fit(res: WindowResult, cfg: PipelineConfig) -> str | None:
     return None
 
 
-def judge_window(res: WindowResult, cfg: PipelineConfig, *,
-                 agreement_may_follow: bool = False) -> str | None:
-    """Why this candidate is unusable, or None. ``agreement_may_follow``: a window whose fx is
-    uncertain by more than ``calib_max_focal_std`` but less than
-    ``calib_agreement_max_focal_std`` is not refused here (it needs another window's agreement)."""
+def judge_window(res: WindowResult, cfg: PipelineConfig) -> str | None:
+    """Why this candidate is unusable, or None."""
     if why := _poor_fit(res, cfg):
         return why
     rotation = rotation_covered_deg(res.T_model_cam)
@@ -230,8 +220,7 @@ def judge_window(res: WindowResult, cfg: PipelineConfig, *,
         return f"only {rotation:.0f} deg of rotation"
     if res.focal_std_rel > 1.0:  # a singular covariance: some direction is not pinned
         return "fx is not determined by these frames (stage 2's covariance is singular)"
-    if _focal_uncertain(res, cfg) and not (
-            agreement_may_follow and res.focal_std_rel <= cfg.calib_agreement_max_focal_std):
+    if _focal_uncertain(res, cfg):
         return (f"fx uncertain by {100 * res.focal_std_rel:.2f} % "
                 f"(> {100 * cfg.calib_max_focal_std:g} %)")
     return _implausible(res.camera)
@@ -265,9 +254,9 @@ def _turns_beyond_gps(window: CalibrationWindow, rotation: float,
     A focal length far too short opens every bearing, so the window's cameras turn further than
     the car did: a narrow lens with strong barrel distortion calibrated 38 % short (k1 -0.14 for
     -0.37) at 0.18 px with every frame registered turned 68 deg where the GPS turned 44 (corpus
-    seed 64, 2026-11-27). Only the excess is a tell: a reconstruction may turn less than the GPS
-    says, where noise made the track zigzag. A 3 % focal error turns a 60 deg window by 2 deg,
-    which this does not resolve, and is not meant to."""
+    seed 64; docs/decisions/calib-gps-rotation-check.md). Only the excess is a tell: a
+    reconstruction may turn less than the GPS says, where noise made the track zigzag. A 3 % focal
+    error turns a 60 deg window by 2 deg, which this does not resolve, and is not meant to."""
     if not (cfg.calib_gps_rotation_check and np.isfinite(window.gps_rotation_deg)
             and np.isfinite(window.gps_rotation_std_deg)):
         return None
@@ -284,7 +273,7 @@ def _path_scale_spread(window: CalibrationWindow, res: WindowResult,
                        frame_names: Sequence[str] | None) -> float:
     """``path_scale.scale_spread`` of the registered cameras against the window's GPS (NaN where
     either is missing). Reported, not judged: as a gate at 3 it changed one tuning journey of 53
-    (c0838, fx +1.87 -> +0.33 %) and no other (bench/results/2026-11-30-path-scale.md)."""
+    (c0838, fx +1.87 -> +0.33 %) and no other (docs/decisions/calib-path-scale.md)."""
     if window.gps_xyz_m is None or frame_names is None or res.error:
         return float("nan")
     rows = sorted(_registered(window.frame_idx, res, frame_names))  # in travel order
@@ -299,20 +288,13 @@ def _focal_uncertain(res: WindowResult, cfg: PipelineConfig) -> bool:
 
 
 def _why_not_alone(res: WindowResult, cfg: PipelineConfig) -> str | None:
-    """Why a usable candidate cannot end the search on its own but needs another window to agree
-    ("" when agreement is always required), or None when it can: stage 2 pins its fx, it is
-    under the sharp-image error, it registered at least ``calib_alone_min_registered_ratio`` of
-    its frames and it turns at least ``calib_alone_min_rotation_deg``. A camera that leaves a
-    third of the window unregistered may be one the rest of the window does not fit."""
+    """Why a usable candidate cannot end the search on its own but needs another window to agree,
+    or None when it can: stage 2 pins its fx, it is under the sharp-image error and it turns at
+    least ``calib_alone_min_rotation_deg``."""
     if _focal_uncertain(res, cfg):
         return f"fx uncertain by {100 * res.focal_std_rel:.2f} %"
-    if cfg.calib_require_agreement:
-        return ""
     if res.reprojection_error_px > cfg.calib_accept_reprojection_px:
         return f"above {cfg.calib_accept_reprojection_px:g} px"
-    if len(res.image_names) < cfg.calib_alone_min_registered_ratio * res.n_input:
-        return (f"only {len(res.image_names)}/{res.n_input} registered, under "
-                f"{100 * cfg.calib_alone_min_registered_ratio:g} %")
     rotation = rotation_covered_deg(res.T_model_cam)
     if rotation < cfg.calib_alone_min_rotation_deg:
         return f"only {rotation:.0f} deg of rotation, under {cfg.calib_alone_min_rotation_deg:g}"
@@ -351,12 +333,10 @@ def _agreeing_on_shared_road(kept: list[tuple[CalibrationWindow, WindowResult]],
     ``calib_shared_road_max_px``; else []. Two kept windows that agree share most of their road,
     or the search would have ended on them.
 
-    Windows of one road are weaker witnesses than windows of two, but over every record of
-    2026-11-26..28 (bench/results/2026-11-28-shared-road.md) pairs of them turning 45 deg or more
-    landed within 1 % of the lens at up to 0.43 px; the two wrong pairs (fx 10-11 % short) fitted
-    at 0.49 and 0.57 px. Not when agreement is always required: windows after the first start
-    from its camera there, so windows of one road would agree by construction."""
-    if not cfg.calib_shared_road_max_px or cfg.calib_require_agreement:
+    Windows of one road are weaker witnesses than windows of two, but pairs of them turning 45 deg
+    or more landed within 1 % of the lens at up to 0.43 px; the two wrong pairs (fx 10-11 % short)
+    fitted at 0.49 and 0.57 px (docs/decisions/calib-shared-road.md)."""
+    if not cfg.calib_shared_road_max_px:
         return []
     usable = [(w, r) for w, r in kept
               if r.reprojection_error_px <= cfg.calib_shared_road_max_px
@@ -371,11 +351,6 @@ def summary(calib: Calibration) -> str:
     """One line on a self-calibration: the window, its evidence, the camera and the fit."""
     (first, end), = calib.windows[:1] or [(0, 0)]
     c = calib.camera
-    if calib.source == "supplied" and calib.single_window is not None:
-        return (f"stored calibration used: frames {first}-{end - 1} self-calibrated to fx "
-                f"{calib.single_window.fx:.1f} but fit the stored camera as well "
-                f"(calib_stored_focal_margin); fx {c.fx:.1f}, fy {c.fy:.1f}, cx {c.cx:.1f}, "
-                f"cy {c.cy:.1f}, k1 {c.k1:+.3f}, k2 {c.k2:+.3f}")
     return (f"self-calibrated on frames {first}-{end - 1} ({calib.evidence}): "
             f"{calib.n_registered}/{calib.n_images} registered, "
             f"{calib.reprojection_error_px:.2f} px; fx {c.fx:.1f}, fy {c.fy:.1f}, "
@@ -389,7 +364,7 @@ def _spread(focal_std_rel: float, std: tuple[float, ...]) -> str:
     none, or a singular covariance). They say which intrinsics the frames pinned down and which
     they did not. The errors measured on the corpus run larger than them, 2x in the median and
     5-10x at the 90th percentile, because the features' errors are systematic, not independent
-    (``bench/results/2026-11-29-split-spread.md``; ``bench corpus`` records both)."""
+    (docs/decisions/calib-misses.md; ``bench corpus`` records both)."""
     if not (np.isfinite(focal_std_rel) and focal_std_rel <= 1.0):
         return ""
     text = f"fx ± {100 * focal_std_rel:.2f} %"
@@ -406,12 +381,6 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float,
         return window.label
     spread = _spread(res.focal_std_rel, res.intrinsics_std)
     spread = f", {spread}" if spread else ""
-    for name, d in res.split_spread.items():
-        spread += (f", {name} split fx {100 * d[0] / res.camera.fx:.2f} %, cx {d[2]:.1f}, "
-                   f"cy {d[3]:.1f} px, k1 {d[4]:.4f}")
-    if res.split_spread:  # the whole camera, so the bench can score every candidate
-        c = res.camera
-        spread += f" (fy {c.fy:.1f}, cx {c.cx:.1f}, cy {c.cy:.1f}, k1 {c.k1:+.4f})"
     # A window mapped again from another focal guess says which (``calib_retry_focal_factors``).
     start = f" from fx {res.retry_focal_px:.0f}" if np.isfinite(res.retry_focal_px) else ""
     if res.probe_moves and res.unprobed_camera is not None:
@@ -433,14 +402,12 @@ def _trial(window: CalibrationWindow, res: WindowResult, gps_turn_deg: float,
             f"turns {rotation_covered_deg(res.T_model_cam):.1f} deg{gps}")
 
 
-def no_turn_error(cfg: PipelineConfig, images_compared: int = 0) -> PipelineError:
+def no_turn_error(cfg: PipelineConfig, images_compared: int = 0) -> NoTurnError:
     """``images_compared``: frames the plan's image look compared (0: it did not look)."""
     seen = (f", nor did {images_compared} of its frames compared show one of >= "
             f"{cfg.turn_image_min_angle_deg:.0f} deg" if images_compared else "")
-    return PipelineError(STAGE, "the journey has no turn (RDP found no heading change of "
-                         f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track{seen}); a straight "
-                         "road cannot calibrate the camera. Upload a journey with a turn first, or "
-                         "supply a calibration for this camera_id")
+    return NoTurnError("the journey has no turn (RDP found no heading change of "
+                       f">= {cfg.turn_min_angle_deg:.0f} deg on the GPS track{seen})")
 
 
 # Two candidates that share more of their road than this are one piece of evidence, not two:
@@ -455,184 +422,113 @@ def shared_fraction(a: CalibrationWindow, b: CalibrationWindow) -> float:
     return max(overlap, 0) / max(hi - lo, 1)
 
 
-def joint_partner(windows: list[CalibrationWindow],
-                  accepted: CalibrationWindow) -> CalibrationWindow | None:
-    """The candidate to refine jointly with the ``accepted`` one: the first of another turn, else
-    the one of the same turn sharing the fewest frames with it, if few enough."""
-    others = [w for w in windows if w.vertex != accepted.vertex]
-    if others:
-        return others[0]
-    rest = sorted((w for w in windows if w is not accepted),
-                  key=lambda w: shared_fraction(accepted, w))
-    if rest and shared_fraction(accepted, rest[0]) <= MAX_SHARED_FRACTION:
-        return rest[0]
-    return None
+@dataclass
+class _Search:
+    """The candidate search so far: the usable windows kept until another agrees (``good``), why
+    each refused or kept one did not calibrate (``reasons``) and one line per candidate tried
+    (``trials``, the stage's report)."""
+
+    cfg: PipelineConfig
+    trials: list[str]
+    frame_names: Sequence[str] | None = None
+    reasons: list[str] = field(default_factory=list)
+    good: list[tuple[CalibrationWindow, WindowResult]] = field(default_factory=list)
+
+    def judge(self, window: CalibrationWindow, res: WindowResult) -> _Chosen | None:
+        """The windows and evidence that end the search with ``res``, or None: it was refused, or
+        kept until another window agrees."""
+        cfg = self.cfg
+        gps_turn_deg = _rotation_where_gps_measured(window, res, self.frame_names)
+        trial = _trial(window, res, gps_turn_deg,
+                       _path_scale_spread(window, res, self.frame_names))
+        why = judge_window(res, cfg) or _turns_beyond_gps(window, gps_turn_deg, cfg)
+        log.info("calibration candidate %s: %s", window.label,
+                 why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
+        if why:
+            self.reasons.append(f"{window.label}: {why}")
+            self.trials.append(f"{trial}: refused, {why}")
+            return None
+        weak = _why_not_alone(res, cfg) or _contradicts(res, self.good, cfg)
+        if weak is None:
+            self.trials.append(f"{trial}: accepted, under {cfg.calib_accept_reprojection_px:g} px")
+            return [(window, res)], "reprojection"
+        # Two windows of other frames that land on the same camera are evidence a wrong minimum
+        # cannot fake; blurred or compressed frames never reach the sharp-image error that ends
+        # the search on its own. Windows sharing most of their road fell into the same wrong
+        # minimum together (fx 18 % low at 0.59 px).
+        agreeing = [g for g in self.good if _agree(g[1].camera, res.camera, cfg)
+                    and shared_fraction(window, g[0]) <= MAX_SHARED_FRACTION]
+        if agreeing:
+            log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
+            self.trials.append(f"{trial}: accepted, agrees with {agreeing[0][0].label}")
+            return agreeing + [(window, res)], "agreement"
+        self.good.append((window, res))
+        self.trials.append(f"{trial}: {weak}, kept until another window agrees")
+        self.reasons.append(f"{window.label}: {weak} and no other window agreed "
+                            f"(fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
+        return None
+
+    def last_resort(self) -> _Chosen | None:
+        """Two kept windows of one road that agree (``_agreeing_on_shared_road``), or None."""
+        pair = _agreeing_on_shared_road(self.good, self.cfg)
+        if not pair:
+            return None
+        (first, a), (second, b) = pair
+        log.info("calibration: %s and %s agree on shared road", first.label, second.label)
+        self.trials.append(
+            f"{first.label} and {second.label}: accepted as a last resort, they share "
+            f"{100 * shared_fraction(second, first):.0f} % of their road and agree "
+            f"(fx {a.camera.fx:.0f} and {b.camera.fx:.0f}, "
+            f"{a.reprojection_error_px:.2f} and {b.reprojection_error_px:.2f} px)")
+        return pair, "agreement on shared road"
 
 
-# Refines the accepted window's reconstruction together with another window's, mapped with the
-# accepted camera held, in one stage 2: (accepted window, its result, the other window) -> the
-# joint result, or the other window's mapping when it failed (``error`` set).
-JointRefiner = Callable[[CalibrationWindow, WindowResult, CalibrationWindow], WindowResult]
-
-
-def _refined_jointly(windows: list[CalibrationWindow], window: CalibrationWindow,
-                     best: WindowResult, cfg: PipelineConfig, refine_jointly: JointRefiner,
-                     trials: list[str]) -> tuple[WindowResult, CalibrationWindow | None]:
-    """The joint stage 2 of ``window`` with its partner when it holds, else ``best`` unchanged."""
-    partner = joint_partner(windows, window)
-    if partner is None:
-        trials.append("no other window to refine jointly with")
-        return best, None
-    joint = refine_jointly(window, best, partner)
-    # Not judge_window: the joint poses are in two frames, so their rotation means nothing.
-    if why := _poor_fit(joint, cfg) or _implausible(joint.camera):
-        log.info("calibration: no joint refinement with %s: %s", partner.label, why)
-        trials.append(f"joint with {partner.label}: not used, {why}")
-        return best, None
-    a, b = best.camera, joint.camera
-    trials.append(f"joint with {partner.label}: {len(joint.image_names)}/{joint.n_input} "
-                  f"registered, {joint.reprojection_error_px:.2f} px; fx {a.fx:.1f} -> {b.fx:.1f}, "
-                  f"k1 {a.k1:+.4f} -> {b.k1:+.4f}")
-    return joint, partner
+# The windows that ended the search and the evidence they gave ("reprojection", "agreement", ...).
+_Chosen = tuple[list[tuple[CalibrationWindow, WindowResult]], str]
 
 
 def self_calibrate(windows: list[CalibrationWindow], cfg: PipelineConfig,
                    map_window: Callable[[CalibrationWindow, CameraModel], WindowResult], *,
-                   hint: CameraModel | None = None, width: int, height: int,
+                   start: CameraModel,
                    on_candidate: Callable[[int, int, CalibrationWindow], None] | None = None,
                    trials: list[str] | None = None,
-                   refine_jointly: JointRefiner | None = None,
-                   frame_names: Sequence[str] | None = None,
-                   stored: CameraModel | None = None,
-                   held_fit: HeldFit | None = None) -> Calibration:
+                   frame_names: Sequence[str] | None = None) -> Calibration:
     """Try the candidate ``windows`` until one calibrates well; raise PipelineError with every
     reason. ``map_window(window, start)`` maps the window's frames with free intrinsics from the
-    camera ``start``. ``on_candidate(k, total, window)`` is called before the k-th is mapped;
-    ``trials``, when given, gets one line per candidate tried: its frames, registration,
-    reprojection error and whether it was accepted or why not (the stage's report).
-    ``refine_jointly`` (used when ``calib_joint``) refines the accepted window together with
-    another; the joint camera replaces the single window's when it is plausible and fits.
-    ``frame_names``: the journey's image names, as ``map_window`` names registered images.
-    ``stored``: the camera's stored calibration, put to the accepted window (``held_fit``, which
-    needs its kept model) by ``stored_or_own``."""
+    camera ``start`` (``initial_camera``). ``on_candidate(k, total, window)`` is called before the
+    k-th is mapped; ``trials``, when given, gets one line per candidate tried: its frames,
+    registration, reprojection error and whether it was accepted or why not (the stage's
+    report). ``frame_names``: the journey's image names, as ``map_window`` names registered
+    images."""
     if not windows:
         raise no_turn_error(cfg)
-    trials = [] if trials is None else trials
-    start = initial_camera(width, height, cfg, hint)
-    reasons: list[str] = []
-    good: list[tuple[CalibrationWindow, WindowResult]] = []
-    chosen: list[tuple[CalibrationWindow, WindowResult]] = []
-    evidence = ""
+    search = _Search(cfg, [] if trials is None else trials, frame_names)
+    chosen = None
     for k, window in enumerate(windows):
         if on_candidate is not None:
             on_candidate(k, len(windows), window)
-        res = map_window(window, start)
-        gps_turn_deg = _rotation_where_gps_measured(window, res, frame_names)
-        path_spread = _path_scale_spread(window, res, frame_names)
-        why = (judge_window(res, cfg, agreement_may_follow=True)
-               or _turns_beyond_gps(window, gps_turn_deg, cfg))
-        trial = _trial(window, res, gps_turn_deg, path_spread)
-        log.info("calibration candidate %s: %s", window.label,
-                 why or f"ok, {res.reprojection_error_px:.3f} px, {res.camera.params()}")
-        if why:
-            reasons.append(f"{window.label}: {why}")
-            trials.append(f"{trial}: refused, {why}")
-            continue
-        weak = _why_not_alone(res, cfg)
-        if weak is None:
-            weak = _contradicts(res, good, cfg)
-        if weak is None:
-            chosen, evidence = [(window, res)], "reprojection"
-            trials.append(f"{trial}: accepted, under "
-                          f"{cfg.calib_accept_reprojection_px:g} px")
+        if chosen := search.judge(window, map_window(window, start)):
             break
-        agreeing = [g for g in good if _agree(g[1].camera, res.camera, cfg)
-                    and shared_fraction(window, g[0]) <= MAX_SHARED_FRACTION]
-        if agreeing:
-            # Two windows of other frames that land on the same camera are evidence a wrong
-            # minimum cannot fake; blurred or compressed frames never reach the sharp-image
-            # error that ends the search on its own. Windows sharing most of their road fell
-            # into the same wrong minimum together (fx 18 % low at 0.59 px, 2026-11-25).
-            chosen, evidence = agreeing + [(window, res)], "agreement"
-            log.info("calibration: %s agrees with %s", window.label, agreeing[0][0].label)
-            trials.append(f"{trial}: accepted, agrees with "
-                          f"{agreeing[0][0].label}")
-            break
-        good.append((window, res))
-        if cfg.calib_require_agreement:
-            # A start near the camera lets a later window register where the wide guess did
-            # not; a wrong camera is no minimum of other frames, so they do not agree with it.
-            start = seeded_start(min(good, key=lambda g: g[1].reprojection_error_px)[1].camera)
-        trials.append(f"{trial}: "
-                      + (f"{weak}, " if weak else "") + "kept until another window agrees")
-        reasons.append(f"{window.label}: {weak or f'{res.reprojection_error_px:.2f} px'} and no "
-                       f"other window agreed (fx {res.camera.fx:.0f}, k1 {res.camera.k1:+.2f})")
-    if not chosen and (pair := _agreeing_on_shared_road(good, cfg)):
-        chosen, evidence = pair, "agreement on shared road"
-        (first, a), (second, b) = pair
-        log.info("calibration: %s and %s agree on shared road", first.label, second.label)
-        trials.append(f"{first.label} and {second.label}: accepted as a last resort, they share "
-                      f"{100 * shared_fraction(second, first):.0f} % of their road and agree "
-                      f"(fx {a.camera.fx:.0f} and {b.camera.fx:.0f}, "
-                      f"{a.reprojection_error_px:.2f} and {b.reprojection_error_px:.2f} px)")
+    chosen = chosen or search.last_resort()
     if not chosen:
         # A lone candidate above the sharp-image error is not accepted: a wrong minimum
         # (fx 23 % low, k1 +0.32 at 0.75 px) was the best of a 5 Hz journey's candidates
-        # (tests/pipeline/test_calibration_varied.py, CI 2026-11-25), and a wrong calibration reused for
-        # the camera is worse than none.
+        # (tests/pipeline/calibration/test_calibration_varied.py), and a wrong calibration reused
+        # for the camera is worse than none.
         raise PipelineError(STAGE, "self-calibration failed on every turn window: "
-                            + "; ".join(reasons))
+                            + "; ".join(search.reasons))
+    return _calibration(*chosen)
+
+
+def _calibration(chosen: list[tuple[CalibrationWindow, WindowResult]],
+                 evidence: str) -> Calibration:
+    """The calibration of the ``chosen`` window that fits best."""
     window, accepted = min(chosen, key=lambda g: g[1].reprojection_error_px)
-    best, used = accepted, [window]
-    if cfg.calib_joint and refine_jointly is not None:
-        joint, partner = _refined_jointly(windows, window, accepted, cfg, refine_jointly, trials)
-        if partner is not None:
-            best, used, evidence = joint, [window, partner], evidence + "+joint"
-    calib = Calibration(camera=best.camera, source="self", stage1=accepted.stage1_camera,
-                        n_images=best.n_input, n_registered=len(best.image_names),
-                        reprojection_error_px=best.reprojection_error_px,
-                        rotation_deg=rotation_covered_deg(accepted.T_model_cam),
-                        windows=[(int(w.frame_idx[0]), int(w.frame_idx[-1]) + 1) for w in used],
-                        evidence=evidence, single_window=accepted.camera,
-                        focal_std_rel=best.focal_std_rel, intrinsics_std=best.intrinsics_std)
-    if stored is None or held_fit is None or accepted.model_dir is None:
-        return calib
-    return stored_or_own(calib, accepted, window.label, stored, held_fit, cfg, trials)
-
-
-# (window result, cameras) -> for each camera, the window's kept model bundle-adjusted with
-# it held: the sum of squared reprojection errors, px^2 (``colmap.sfm.held_camera_fit``).
-HeldFit = Callable[[WindowResult, list[CameraModel]], list[float]]
-
-
-def stored_or_own(calib: Calibration, accepted: WindowResult, label: str, stored: CameraModel,
-                  held_fit: HeldFit, cfg: PipelineConfig, trials: list[str]) -> Calibration:
-    """``calib``, or the camera's ``stored`` calibration when the accepted window cannot tell
-    the two apart: it fits ``stored`` (held) no worse than its own camera with fx and fy
-    ``calib_stored_focal_margin`` longer or shorter.
-
-    The window's own camera is its best fit by construction; how much worse a focal change of
-    the margin fits is the window's own measure of how sharply it sees the camera (a blurred or
-    narrow window, little; a sharp wide one, a lot). A stored camera inside that measure is one the
-    journey has no evidence against, and it is the consensus of the camera's other journeys; a
-    camera that really changed lies outside it on any window that could calibrate it."""
-    own = accepted.camera
-    margin = cfg.calib_stored_focal_margin
-    if (margin <= 0 or (stored.width, stored.height) != (own.width, own.height)
-            or _agree(own, stored, cfg)):
-        return calib
-    longer, shorter, held = held_fit(accepted, [
-        own.replace(fx=own.fx * (1 + margin), fy=own.fy * (1 + margin)),
-        own.replace(fx=own.fx * (1 - margin), fy=own.fy * (1 - margin)), stored])
-    bound = min(longer, shorter)
-    fits = (f"the stored camera (fx {stored.fx:.1f}, this window's {own.fx:.1f}) held on "
-            f"{label} fits {held / bound:.2f} x as badly as this window's own with fx "
-            f"{100 * margin:g} % off")
-    if held > bound:
-        trials.append(f"{fits}: the journey's own calibration is kept")
-        return calib
-    trials.append(f"{fits}: the stored one is used")
-    log.info("calibration: %s", fits)
-    return replace(calib, camera=stored, source="supplied", single_window=own,
-                   evidence="stored, not contradicted by " + calib.evidence,
-                   focal_std_rel=float("nan"), intrinsics_std=())
+    return Calibration(camera=accepted.camera, source="self", stage1=accepted.stage1_camera,
+                       n_images=accepted.n_input, n_registered=len(accepted.image_names),
+                       reprojection_error_px=accepted.reprojection_error_px,
+                       rotation_deg=rotation_covered_deg(accepted.T_model_cam),
+                       windows=[(int(window.frame_idx[0]), int(window.frame_idx[-1]) + 1)],
+                       evidence=evidence,
+                       focal_std_rel=accepted.focal_std_rel,
+                       intrinsics_std=accepted.intrinsics_std)

@@ -66,10 +66,8 @@ def _ceil_div(a: int, b: int) -> int:
 
 
 def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: CameraModel, *,
-             step: int = 1, extra: np.ndarray = np.zeros(0, int), position_priors: bool = False,
-             init_gap_frames: int | None = None, more_init_pairs: int = 0,
-             keypoint_depths: bool = False,
-             map_leftovers_min_images: int = 0) -> list[WindowRequest]:
+             step: int = 1, extra: np.ndarray = np.zeros(0, int),
+             init_gap_frames: int | None = None, more_init_pairs: int = 0) -> list[WindowRequest]:
     """One mapping request per window: its frames on the ``step`` grid (at 10 frames/s
     consecutive frames add little geometry but cost tracking, matching and registration time),
     and those of the ``extra`` frames that fall inside it (``off_grid_frames``).
@@ -78,7 +76,7 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
     window's middle (``init_pair``) instead of COLMAP's most-matched pair. It must not exceed the
     matching overlap, or the two frames may never have been matched. ``more_init_pairs``: how
     many of the other pairs of ``_INIT_PAIRS`` to try when the window cannot start from that one,
-    before COLMAP's own choice. ``keypoint_depths``: have each result carry its keypoints' depths.
+    before COLMAP's own choice.
     """
     out = []
     for a, b in windows:
@@ -90,11 +88,8 @@ def requests(windows: list[tuple[int, int]], frame_names: list[str], camera: Cam
             if pair is not None and pair not in pairs:
                 pairs.append(pair)
         out.append(WindowRequest(image_names=[frame_names[i] for i in idx], camera=camera,
-                                 use_position_priors=position_priors,
                                  init_pair=pairs[0] if pairs else None,
-                                 more_init_pairs=tuple(pairs[1:]),
-                                 keypoint_depths=keypoint_depths,
-                                 map_leftovers_min_images=map_leftovers_min_images))
+                                 more_init_pairs=tuple(pairs[1:])))
     return out
 
 
@@ -143,30 +138,19 @@ def mapped_frames(windows: list[tuple[int, int]], step: int,
 @dataclass(frozen=True)
 class WindowPoses:
     """A window's reconstruction: ``frame_idx`` (K,) journey frame indices of the registered frames,
-    ``T_model_cam`` (K, 4, 4) in the window's own model frame (arbitrary scale);
-    ``keypoint_depths`` (K entries, or None): per frame its keypoints with a 3D point and their
-    depths in model units (``WindowResult.keypoint_depths``)."""
+    ``T_model_cam`` (K, 4, 4) in the window's own model frame (arbitrary scale)."""
 
     window: tuple[int, int]
     frame_idx: np.ndarray
     T_model_cam: np.ndarray
-    keypoint_depths: list[tuple[np.ndarray, np.ndarray]] | None = None
 
 
 def window_poses(windows: list[tuple[int, int]], results: list[WindowResult],
                  frame_names: list[str]) -> list[WindowPoses]:
-    """The reconstructed windows, each model a window's mapping left over (``others``) as one
-    more, spanning its own frames."""
+    """The reconstructed windows: those that registered at least 3 frames."""
     index = {name: i for i, name in enumerate(frame_names)}
-    out = []
-    for w, r in zip(windows, results):
-        for k, model in enumerate([r, *r.others]):
-            if len(model.image_names) < 3:
-                continue
-            idx = np.array([index[n] for n in model.image_names], dtype=int)
-            span = w if k == 0 else (int(idx.min()), int(idx.max()) + 1)
-            out.append(WindowPoses(span, idx, model.T_model_cam, model.keypoint_depths))
-    return out
+    return [WindowPoses(w, np.array([index[n] for n in r.image_names], dtype=int), r.T_model_cam)
+            for w, r in zip(windows, results) if len(r.image_names) >= 3]
 
 
 def report(windows: list[tuple[int, int]], results: list[WindowResult],
@@ -174,8 +158,6 @@ def report(windows: list[tuple[int, int]], results: list[WindowResult],
     """The ego_motion stage's report: each window's registration, or why it failed."""
     details = tuple(f"frames {a}-{b - 1}: " + (r.error or f"{len(r.image_names)}/{r.n_input} "
                                                 f"registered, {r.reprojection_error_px:.2f} px")
-                    + "".join(f"; {len(o.image_names)} more in a model of their own"
-                              for o in r.others)
                     for (a, b), r in zip(windows, results))
     return StageReport("ego_motion", f"{len(poses)} of {len(windows)} windows reconstructed",
                        details)

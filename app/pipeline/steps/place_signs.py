@@ -76,8 +76,7 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
         cov_enu = cov_tri + georef.cov_m2(georef_floor_m(config.sign_georef_floor_m,
                                                          journey.gps_accuracy_m),
                                           config.sign_georef_noise_gain,
-                                          config.sign_georef_bias_ratio,
-                                          config.sign_georef_bias_quad_per_m)
+                                          bias_quad_per_m=config.sign_georef_bias_quad_per_m)
         T = np.concatenate([p.T_world_cam for p in placed])
         frame_ids = [journey.frames[i].frame_id for p in placed for i in p.frame_idx]
         p_cam = np.einsum("mji,mj->mi", T[:, :3, :3], xyz[None, :] - T[:, :3, 3])
@@ -143,9 +142,7 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
     tp = align.track_poses(track, aligned, xyz_gps, mode=config.alignment,
                            margin=config.short_alignment_margin_frames,
                            min_frames=config.short_alignment_min_frames,
-                           local_weight=config.local_alignment_weight,
-                           fill_gap_frames=config.interpolate_poses_max_gap_frames,
-                           trusted=trusted)
+                           local_weight=config.local_alignment_weight, trusted=trusted)
     if tp is None or tp.keep.sum() < 2:
         raise TriangulationError("its frames were not reconstructed")
     check_reconstruction(tp.window_rms_m, gps_noise_m, config)

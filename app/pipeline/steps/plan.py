@@ -120,7 +120,7 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
         calib_windows = []
     calib_windows = gps_rotation(calib_windows, xyz_gps, sigma_m, config)
     spacing_m = moving_spacing_m(xyz_gps, timestamp_s, journey.gps_noise_m)
-    ego_step = frame_step(spacing_m, config.ego_frame_step, config.ego_max_spacing_m)
+    ego_step = config.ego_frame_step
     # A sign seen again later (after a loop) is mapped once per pass, each from a short window.
     margin = config.sign_window_margin_frames
     passes = {t.track_id: sign_tracks.split_passes(
@@ -220,14 +220,6 @@ def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | 
         return None
     spread = NORMAL_Z75 * np.sqrt(2.0) * (noise_m or 0.0) / float(np.median(dt))
     return float(max(np.percentile(moving, 75) - spread, 0.0) * frame_s)
-
-
-def frame_step(spacing_m: float | None, max_step: int, max_spacing_m: float) -> int:
-    """Map every n-th frame, n from ``max_step`` down to 1, so that mapped frames lie at most
-    ``max_spacing_m`` apart; ``spacing_m``: between consecutive frames (``moving_spacing_m``)."""
-    if spacing_m is None or max_spacing_m <= 0:
-        return max_step
-    return int(min(max_step, max(1, np.floor(max_spacing_m / spacing_m))))
 
 
 def ego_front_end(spacing_m: float | None, step: int, front_end: str,

@@ -195,13 +195,14 @@ def smooth_track(xy_m: np.ndarray, timestamp_s: np.ndarray, sigma_s: float,
     width is taken at their median interval).
 
     A phone-grade receiver (1-3 m of white noise) zigzags by more than the RDP tolerance: on a
-    corpus of 42 journeys (2026-11-24) the raw tracks showed up to 857 deg of "turning" on
-    straight roads and none on a real 89 deg turn; smoothed over 1 s, the found rotation followed
-    the true one. A turn keeps its heading change, spread over a few more metres. At speed, one
-    second is many metres: a 51 deg turn at 18 m/s on an 80 m journey (corpus c0058) flattened
-    to 28 deg; ``max_sigma_m`` (None or 0: no cap) caps the width in metres, at the price of
-    less smoothing of phone-grade noise at speed (``config.turn_smoothing_max_m``: at 6 m that
-    noise made turns on straight roads, at 12 m it did not).
+    corpus of 42 journeys the raw tracks showed up to 857 deg of "turning" on straight roads and
+    none on a real 89 deg turn; smoothed over 1 s, the found rotation followed the true one
+    (docs/decisions/turn-finding.md). A turn keeps its heading change, spread over a few more
+    metres. At speed, one second is many metres: a 51 deg turn at 18 m/s on an 80 m journey
+    (corpus c0058) flattened to 28 deg; ``max_sigma_m`` (None or 0: no cap) caps the width in
+    metres, at the price of less smoothing of phone-grade noise at speed
+    (``config.turn_smoothing_max_m``: at 6 m that noise made turns on straight roads, at 12 m it
+    did not).
 
     The kernel is padded with copies of the end points, which pulls the first and last 4 sigma
     of track towards them; ``extend_ends`` pads with the track continued along its heading

@@ -166,30 +166,6 @@ def test_umeyama_agrees_with_pycolmap_on_rigid_motion():
     np.testing.assert_allclose(est.R, ref.rotation.matrix(), atol=1e-9)
 
 
-def test_scale_ratio_of_two_windows_from_the_depths_of_their_shared_keypoints():
-    from app.pipeline.steps.align import scale_ratio
-    from app.pipeline.steps.ego_motion import WindowPoses
-
-    rng = np.random.default_rng(0)
-    depth_world = rng.uniform(5.0, 40.0, (4, 300))  # frames 2-5, 300 keypoints each
-    T = np.tile(np.eye(4), (6, 1, 1))
-    none = (np.zeros(0, int), np.zeros(0))
-
-    def shared(scale: float) -> list:
-        """Model depths of the shared frames' keypoints in a window of that model -> world scale
-        (1 % depth noise)."""
-        return [(np.arange(300), depth_world[k] / scale * np.exp(rng.normal(0, 0.01, 300)))
-                for k in range(4)]
-
-    a = WindowPoses((0, 6), np.arange(0, 6), T, [none, none] + shared(2.0))
-    b = WindowPoses((2, 8), np.arange(2, 8), T, shared(0.5) + [none, none])
-    r = scale_ratio(a, b)
-    # world depth = s_a d_a = s_b d_b: log(s_a / s_b) = log(2 / 0.5)
-    assert r is not None and r.n == 1200
-    assert abs(r.log_ratio - np.log(4.0)) < 0.005 and 0 < r.sigma < 0.005
-    assert scale_ratio(a, WindowPoses((2, 8), np.arange(2, 8), T, None)) is None
-
-
 def test_a_partial_similarity_goes_part_of_the_way_about_its_pivot():
     sim = Sim3(1.1, Rotation.from_rotvec([0.0, 0.0, 0.2]).as_matrix(), np.array([3.0, -1.0, 0.5]))
     pivot = np.array([10.0, 5.0, 1.0])

@@ -30,13 +30,13 @@ def test_georeferencing_adds_averaged_noise_and_the_floor():
 
 
 def test_common_error_grows_with_the_square_of_the_residual_and_passes_combine():
-    # One pass: residual 2 m, ratio 0.3 and square 0.3 /m: common error 0.6 + 1.2 = 1.8 m per axis.
+    # One pass: residual 2 m, square 0.3 /m: common error 1.2 m per axis.
     one = GeorefTerms.of_alignment(alignment_rms_m=2.0, n_fixes=16)
-    assert one.horizontal_m2(0.0, 1.0, 0.3, 0.3) == pytest.approx(4.0 / 16 + 1.8**2)
-    # The square term off: the linear model as before (ratio^2 x residual^2).
-    assert one.horizontal_m2(0.1, 1.0, 0.5) == pytest.approx(0.25 + 0.01 + 0.25 * 4.0)
+    assert one.horizontal_m2(0.0, 1.0, 0.3) == pytest.approx(4.0 / 16 + 1.2**2)
+    # The square term off: the averaged noise and the floor alone.
+    assert one.horizontal_m2(0.1, 1.0) == pytest.approx(0.25 + 0.01)
     # Two agreeing passes of weight 1/2 (sum w^2 = 1/2): every term halves, the square included.
     two = GeorefTerms(0.5 * one.averaged_noise_m2, 0.5, 0.5 * one.residual_m2)
-    assert two.horizontal_m2(0.1, 1.0, 0.3, 0.3) == pytest.approx(
-        0.5 * one.horizontal_m2(0.1, 1.0, 0.3, 0.3))
-    assert GeorefTerms(0.0, 0.0, 0.0).horizontal_m2(0.1, 1.0, 0.3, 0.3) == 0.0
+    assert two.horizontal_m2(0.1, 1.0, 0.3) == pytest.approx(
+        0.5 * one.horizontal_m2(0.1, 1.0, 0.3))
+    assert GeorefTerms(0.0, 0.0, 0.0).horizontal_m2(0.1, 1.0, 0.3) == 0.0

@@ -243,15 +243,6 @@ def test_frame_spacing_is_the_moving_speed_and_a_turn_or_a_stop_does_not_shorten
     assert moving_spacing_m(np.zeros((50, 3)), t[:50]) is None
 
 
-def test_frames_far_apart_are_all_mapped():
-    from app.pipeline.steps.plan import frame_step
-
-    assert frame_step(0.9, 2, 2.5) == 2  # KITTI-like: 0.9 m per frame
-    assert frame_step(2.0, 2, 2.5) == 1  # 5 Hz at 10 m/s
-    assert frame_step(2.0, 2, 0.0) == 2  # 0: the fixed step
-    assert frame_step(None, 2, 2.5) == 2  # a car that never moves
-
-
 def test_frames_mapped_metres_apart_get_sift_and_close_ones_keep_klt():
     from app.pipeline.steps.plan import ego_front_end
 
@@ -273,29 +264,3 @@ def test_more_initial_pairs_are_tried_with_half_the_gap_and_off_the_middle():
     assert more.more_init_pairs == ((names[38], names[42]),  # half the gap, in the middle
                                     (names[18], names[26]),  # a quarter in
                                     (names[54], names[62]))  # three quarters in
-
-
-def test_the_longest_unregistered_run_of_a_window_is_mapped_again_when_long_enough():
-    from app.pipeline.colmap.sfm import leftover_run
-
-    names = [f"{i:06d}" for i in range(0, 40, 2)]
-    registered = names[:9] + names[10:11]  # a model that stopped at the 9th image, one stray
-    assert leftover_run(names, registered, 6) == names[11:]
-    assert leftover_run(names, registered, 10) == []
-    assert leftover_run(names, registered, 0) == []
-    assert leftover_run(names, names, 1) == []
-
-
-def test_a_model_of_left_over_frames_is_one_more_window_over_its_own_frames():
-    from app.pipeline.colmap.sfm import WindowResult
-    from app.pipeline.steps.ego_motion import window_poses
-    from app.pipeline.types import CameraModel
-
-    cam = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, 0.0, 0.0)
-    names = [f"{i:06d}" for i in range(60)]
-    main = WindowResult(names[0:20:2], np.tile(np.eye(4), (10, 1, 1)), cam)
-    main.others = [WindowResult(names[24:40:2], np.tile(np.eye(4), (8, 1, 1)), cam),
-                   WindowResult(names[50:54:2], np.tile(np.eye(4), (2, 1, 1)), cam)]
-    poses = window_poses([(0, 40)], [main], names)
-    assert [p.window for p in poses] == [(0, 40), (24, 39)]  # the 2-frame model is too small
-    assert poses[1].frame_idx.tolist() == list(range(24, 40, 2))

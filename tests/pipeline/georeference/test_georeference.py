@@ -12,7 +12,7 @@ from app.pipeline.geometry.similarity import Sim3
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.steps.align import JointSigmas, align_window, align_windows, track_poses
-from app.synth.trajectory import noisy_gps
+from app.synth.drive.trajectory import noisy_gps
 
 FPS = 10.0
 STEP = 2
