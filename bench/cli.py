@@ -8,9 +8,11 @@ import argparse
 import json
 from pathlib import Path
 
-SCENARIOS = ("pages", "big-pages", "tiles", "low-tiles")  # bench.map_load.SCENARIOS
+SCENARIOS = ("pages", "big-pages", "tiles", "low-tiles")  # bench.service.map_load.SCENARIOS
 
 BENCH_DIR = Path(__file__).resolve().parent
+
+COMMANDS = {"bench": "benchmark accuracy and speed on synthetic journeys"}
 
 
 def _common(p: argparse.ArgumentParser, inherit: bool = False) -> None:
@@ -27,7 +29,7 @@ def _common(p: argparse.ArgumentParser, inherit: bool = False) -> None:
 
 
 def run_suite_command(args) -> int:
-    from bench.runner import run_bench
+    from bench.paper.runner import run_bench
 
     md, js = run_bench(quick=args.quick, out_dir=args.out, cache_dir=args.cache)
     print(md.read_text())
@@ -36,7 +38,7 @@ def run_suite_command(args) -> int:
 
 
 def run_sensitivity_command(args) -> int:
-    from bench.sensitivity import run_sensitivity
+    from bench.paper.sensitivity import run_sensitivity
 
     md, js = run_sensitivity(quick=args.quick, out_dir=args.out, cache_dir=args.cache,
                              steps=args.steps)
@@ -46,7 +48,7 @@ def run_sensitivity_command(args) -> int:
 
 
 def run_fusion_command(args) -> int:
-    from bench.fusion import run_fusion
+    from bench.paper.fusion import run_fusion
 
     md, js = run_fusion(quick=args.quick, out_dir=args.out, cache_dir=args.cache)
     print(md.read_text())
@@ -55,7 +57,7 @@ def run_fusion_command(args) -> int:
 
 
 def run_render_check_command(args) -> int:
-    from bench.render_check import run_render_check
+    from bench.studies.render_check import run_render_check
 
     md = run_render_check(args.corpus, args.names, args.out)
     print(f"wrote {md}")
@@ -74,7 +76,7 @@ def parse_knob(text: str) -> tuple[str, object]:
 
 
 def run_corpus_command(args) -> int:
-    from bench.corpus import run_corpus
+    from bench.corpus.run import run_corpus
 
     if args.true_camera and args.stored_camera:
         raise SystemExit("signmap bench corpus: --true-camera skips calibrating, --stored-camera "
@@ -99,7 +101,7 @@ def run_corpus_command(args) -> int:
 
 def _runs(command: str, paths: list[Path]) -> list[dict]:
     """The journey records of the corpus runs ``paths``, pooled; a missing file ends ``command``."""
-    from bench.corpus import read_records
+    from bench.corpus.run import read_records
 
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
@@ -109,21 +111,20 @@ def _runs(command: str, paths: list[Path]) -> list[dict]:
 
 def run_uncertainty_command(args) -> int:
     from app.pipeline.config import PipelineConfig
-    from bench.uncertainty_fit import Knobs, report
+    from bench.studies.uncertainty_fit import Knobs, report
 
     records = _runs("uncertainty", args.jsonl)
     c = PipelineConfig()
     fitted, table = report(records, Knobs(c.sign_georef_floor_m, c.sign_georef_noise_gain,
-                                          c.sign_georef_bias_ratio, c.sign_georef_bias_quad_per_m))
+                                          c.sign_georef_bias_quad_per_m))
     print(table)
     print(f"\nfitted on the tuning half: --set sign_georef_floor_m={fitted.floor_m:.2f} "
-          f"--set sign_georef_bias_ratio={fitted.bias_ratio:.2f} "
           f"--set sign_georef_bias_quad_per_m={fitted.bias_quad_per_m:.2f}")
     return 0
 
 
 def run_corpus_compare_command(args) -> int:
-    from bench.corpus_compare import compare
+    from bench.corpus.compare import compare
 
     before = _runs("corpus-compare", args.before)
     print(compare(before, _runs("corpus-compare", args.after)))
@@ -131,7 +132,7 @@ def run_corpus_compare_command(args) -> int:
 
 
 def run_corpus_report_command(args) -> int:
-    from bench.corpus_report import render_records
+    from bench.corpus.report import render_records
 
     md = render_records(_runs("corpus-report", args.jsonl), [str(p) for p in args.jsonl])
     if args.out:
@@ -141,7 +142,7 @@ def run_corpus_report_command(args) -> int:
 
 
 def run_turns_command(args) -> int:
-    from bench.turn_detection import run
+    from bench.studies.turn_detection import run
 
     try:
         print(run(args.n, args.seed, args.variant or [], args.half))
@@ -168,7 +169,7 @@ def _add_turns_parser(bench_sub) -> None:
 def run_gps_draws_command(args) -> int:
     from pydantic import ValidationError
 
-    from bench.gps_draws import run
+    from bench.studies.gps_draws import run
 
     try:
         print(run(args.journey, args.draws, args.variant or [], args.cache, args.seed))
@@ -199,7 +200,7 @@ def _add_gps_draws_parser(bench_sub) -> None:
 
 
 def run_gps_scale_command(args) -> int:
-    from bench.gps_scale import run
+    from bench.studies.gps_scale import run
 
     print(run(args.n, args.seed, args.half))
     return 0
@@ -220,7 +221,7 @@ def _add_gps_scale_parser(bench_sub) -> None:
 
 
 def run_gps_focal_command(args) -> int:
-    from bench.gps_focal import collect, table, window_rotation_table
+    from bench.studies.gps_focal import collect, table, window_rotation_table
 
     if not args.records and not args.replay:
         raise SystemExit("signmap bench gps-focal: give --replay DIR or --records RUN.jsonl")
@@ -247,14 +248,14 @@ def _add_gps_focal_parser(bench_sub) -> None:
 
 
 def run_pose_error_command(args) -> int:
-    from bench.pose_error import collect, table
+    from bench.studies.pose_error import collect, table
 
     print(table(collect(args.replay, args.corpus)))
     return 0
 
 
 def run_real_ego_command(args) -> int:
-    from bench.real_ego import run
+    from bench.studies.real_ego import run
 
     print(run(args.bundle, args.calibration, args.poses))
     return 0
@@ -327,7 +328,7 @@ def _add_corpus_parser(bench_sub) -> None:
 def run_map_command(args) -> int:
     import sys
 
-    from bench.map_bench import QUICK_SIGNS, MapBenchOptions, run_map_bench
+    from bench.service.map_bench import QUICK_SIGNS, MapBenchOptions, run_map_bench
 
     quick = args.quick
     opts = MapBenchOptions(
@@ -403,7 +404,7 @@ def _add_map_parser(bench_sub) -> None:
 def add_parsers(sub) -> None:
     """Add ``bench`` (with its ``sensitivity``, ``fusion`` and ``corpus`` subcommands) to the
     ``signmap`` subparsers."""
-    p = sub.add_parser("bench", help="benchmark accuracy and speed on synthetic journeys",
+    p = sub.add_parser("bench", help=COMMANDS["bench"],
                        description="Runs the suite of synthetic journeys with our pipeline and "
                        "its baselines; prints markdown tables, writes <date>.md/.json and plots.")
     _common(p)
@@ -426,8 +427,7 @@ def add_parsers(sub) -> None:
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",
         description="Reads the JSONL of a full `signmap bench corpus` run; chooses "
-        "sign_georef_floor_m, sign_georef_bias_ratio and sign_georef_bias_quad_per_m on its "
-        "tuning half so that 95 %% of "
+        "sign_georef_floor_m and sign_georef_bias_quad_per_m on its tuning half so that 95 %% of "
         "signs lie inside their 95 %% radius for OXTS-like and phone-like GPS alike; prints the "
         "coverage per half with the current and the fitted knobs.")
     u.add_argument("jsonl", type=Path, nargs="+",
@@ -460,7 +460,7 @@ def add_parsers(sub) -> None:
                     help="where the markdown goes (default bench/results)")
     rc.set_defaults(func=run_render_check_command)
     _add_map_parser(bench_sub)
-    from bench.api_load import add_parser as add_api_parser
+    from bench.service.api_load import add_parser as add_api_parser
 
     add_api_parser(bench_sub)
 

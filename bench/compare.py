@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 from app.pipeline.geometry.geodesy import frame_at
-from bench.evaluate import calibration_errors_pct
+from bench.paper.metrics import calibration_errors_pct
 
 
 def main(report_path: str, truth_path: str) -> int:

@@ -12,8 +12,8 @@ import pytest
 
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow
-from bench.api_load import Options, ok, run_api_bench
-from bench.api_stack import Service, account
+from bench.service.api_load import Options, ok, run_api_bench
+from bench.service.api_stack import Service, account
 from tests.utils.backends import PG_URL, REDIS_URL
 from tests.utils.stack import sqlite_stack
 

@@ -13,12 +13,12 @@ import pytest
 from app.pipeline.types import (Calibration, CameraModel, Detection, Frame, Journey,
                                 JourneyResult)
 from bench import cli as bench_cli
-from bench.metrics import sign_summary, snippet_rmse_m, trajectory_metrics
-from bench.run_pipeline import prefix
-from bench.runner import compare, finite
-from bench.plots import plot_sensitivity
-from bench.sensitivity import GROUPS, perturbed_cameras, sensitivity_rows, table_sensitivity
-from bench.tables import render_report
+from bench.paper.metrics import sign_summary, snippet_rmse_m, trajectory_metrics
+from bench.paper.run_pipeline import prefix
+from bench.paper.runner import compare, finite
+from bench.paper.plots import plot_sensitivity
+from bench.paper.sensitivity import GROUPS, perturbed_cameras, sensitivity_rows, table_sensitivity
+from bench.paper.tables import render_report
 
 CAMERA = CameraModel(1242, 375, 959.2, 952.9, 694.4, 241.7, -0.369, 0.158)
 ORIGIN = {"lat": 49.011, "lon": 8.418, "alt_m": 112.0}
@@ -179,7 +179,7 @@ def test_report_renders_failed_and_missing_runs():
 @pytest.mark.slow
 @pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_quick_bench_writes_tables_json_and_plots(tmp_path):
-    from bench.runner import run_bench
+    from bench.paper.runner import run_bench
 
     md_path, json_path = run_bench(quick=True, out_dir=tmp_path, cache_dir=REPO / "bench/cache")
     report = json.loads(json_path.read_text())

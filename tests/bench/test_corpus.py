@@ -14,9 +14,9 @@ import pytest
 
 from app.synth.journey import SynthConfig, write_bundle
 from bench import cli as bench_cli
-from bench import corpus_report as cr
-from bench.corpus import (bundle_digest, camera_errors, load_corpus, read_jsonl, run_corpus,
-                          select_journeys)
+from bench.corpus import report as cr
+from bench.corpus.run import (bundle_digest, camera_errors, load_corpus, read_jsonl, run_corpus,
+                              select_journeys)
 
 TRUE = {"fx": 1000.0, "fy": 1000.0, "cx": 640.0, "cy": 360.0, "k1": -0.2, "k2": 0.0}
 
@@ -317,7 +317,7 @@ def _fake_corpus(root: Path) -> Path:
 
 def test_a_run_written_before_a_setup_field_existed_resumes_and_another_setup_does_not(
         tmp_path: Path):
-    from bench.corpus import run_corpus
+    from bench.corpus.run import run_corpus
 
     corpus = tmp_path / "corpus"
     corpus.mkdir()
@@ -361,7 +361,7 @@ def test_calibrate_only_run_on_a_fake_corpus(tmp_path: Path):
 
 
 def test_corpus_compare_puts_before_and_after_side_by_side(tmp_path):
-    from bench.corpus_compare import compare
+    from bench.corpus.compare import compare
 
     before = _records()
     after = [dict(r) for r in _records()]
@@ -393,7 +393,7 @@ def test_a_bundle_digest_follows_the_contents_not_the_write_time(tmp_path):
 
 
 def test_corpus_compare_names_journeys_rendered_differently(tmp_path):
-    from bench.corpus_compare import compare
+    from bench.corpus.compare import compare
 
     before = [{**r, "bundle_digest": "aaaa"} for r in _records()]
     after = [{**r, "bundle_digest": "aaaa"} for r in _records()]
@@ -404,7 +404,7 @@ def test_corpus_compare_names_journeys_rendered_differently(tmp_path):
 
 
 def test_a_missed_sign_of_a_bundle_without_track_ids_gets_the_reason_of_the_track_it_became():
-    from bench.corpus import _why_not, track_of_sign
+    from bench.corpus.run import _why_not, track_of_sign
 
     def sign(sid, boxes):
         return {"id": sid, "track_id": "", "observations": [
@@ -448,7 +448,7 @@ def test_a_replay_georeferences_the_kept_reconstruction_as_the_full_run_did(tmp_
 
     # The pose-error split re-triangulates the same placed signs: its "placed" error is the
     # bench's, and the renderer's own poses place them closer than the estimated ones do.
-    from bench.pose_error import collect, table
+    from bench.studies.pose_error import collect, table
     rows = collect(kept, corpus)
     by_track = {r.track_id: r for r in rows}
     assert set(by_track) <= set(full_rec["sign_errors"]) and len(rows) >= 3

@@ -7,7 +7,7 @@ import json
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench.real_ego import evaluate, relative_errors, table
+from bench.studies.real_ego import evaluate, relative_errors, table
 
 
 def test_relative_errors_see_a_turned_step_a_bent_direction_and_a_stretched_step():

@@ -3,7 +3,7 @@ poses, fits the truth file's own camera best, and says so when the truth names a
 
 import pytest
 
-from bench.render_check import check_bundle
+from bench.studies.render_check import check_bundle
 
 
 def test_a_rendered_journey_fits_its_own_camera_best(turn_journey_bundle):

@@ -9,8 +9,8 @@ from app.pipeline.config import PipelineConfig
 from app.pipeline.steps.plan import turns_and_candidates
 from app.pipeline.steps.turns import find_turns, smooth_track
 from bench.cli import main
-from bench.turn_detection import (candidate_frames, journey_track, largest_found_deg, moved_table,
-                                  parse_variant, table)
+from bench.studies.turn_detection import (candidate_frames, journey_track, largest_found_deg,
+                                          moved_table, parse_variant, table)
 
 
 def test_a_fast_turn_with_sparse_gps_is_missed_unless_smoothing_is_capped_in_metres():
