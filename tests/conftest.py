@@ -7,6 +7,7 @@ Without PostgreSQL/Redis the real-stack tests are skipped, except under CI (``CI
 fail; the run ends with a "real-service tests skipped" section saying which were skipped and why
 (``tests/utils/real_services.py``, which also covers the browser tests). Locations:
 SIGNMAP_TEST_POSTGRES_URL (a database to connect to for CREATE DATABASE) and SIGNMAP_TEST_REDIS_URL.
+The run also ends by saying how many ``extended`` tests it left out (``tests/utils/extended.py``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import pytest
 
 from tests.utils.backends import (REDIS_URL, SESSION_TAG, backend_unavailable, forget_queues,
                                   pg_database)
+from tests.utils.extended import register_extended_left_out
 from tests.utils.journeys import synthetic_journey
 from tests.utils.real_services import register_real_service_skips
 from tests.utils.stack import Stack, make_settings, sqlite_stack
@@ -28,14 +30,15 @@ from tests.utils.stack import Stack, make_settings, sqlite_stack
 
 def pytest_configure(config) -> None:
     register_real_service_skips(config)
+    register_extended_left_out(config)
 
 
 def pytest_collection_modifyitems(items) -> None:
     # schemathesis makes one item per API operation, named for it, but under pytest 9 they all keep
     # the test function's node id (it renames them through ``_nodeid``, which pytest 9 no longer
     # reads); pytest-xdist schedules by node id and ran one operation of each such test.
-    # tests/service/test_api_schema_fuzz.py checks that every operation was called. Under pytest 8
-    # the renaming works, no item matches, and pytest 9's private module is never imported.
+    # tests/service/api/test_api_schema_fuzz.py checks that every operation was called. Under
+    # pytest 8 the renaming works, no item matches, and pytest 9's private module is never imported.
     for item in items:
         module_path, _, name = item.nodeid.rpartition("::")
         if item.name != name and item.name.startswith(name + "["):

@@ -14,9 +14,9 @@ from typing import Literal
 import numpy as np
 
 from app.pipeline.types import CameraModel
-from app.synth.road import TurnSpecs, min_travel_m
-from app.synth.speed import SpeedProfile, speed_profile
-from app.synth.world import WorldSpec
+from app.synth.drive.speed import SpeedProfile, speed_profile
+from app.synth.street.road import TurnSpecs, min_travel_m
+from app.synth.street.world import WorldSpec
 
 KITTI_LIKE_CAMERA = CameraModel(width=1242, height=375, fx=959.2, fy=952.9, cx=694.4, cy=241.7,
                                 k1=-0.369, k2=0.158)
@@ -77,7 +77,7 @@ class SynthConfig:
     speed_variation: float = 0.0
     stops: tuple[tuple[float, float], ...] = ()
     decel_mps2: float = 2.0
-    # Image effects after rendering (app.synth.effects); 0 = off.
+    # Image effects after rendering (app.synth.camera.effects); 0 = off.
     exposure_s: float = 0.0  # motion blur: the camera's motion during this exposure time
     gain_drift: float = 0.0  # std of the slow log-brightness drift
     gain_jump_rate_hz: float = 0.0  # auto-exposure jumps of +-10..30 % per second

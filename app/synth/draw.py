@@ -14,8 +14,8 @@ import numpy as np
 from app.synth.config import SynthConfig
 from app.synth.draw_parts import (GPS_RATES_HZ, draw_camera, draw_detector, draw_effects,
                                   draw_gps, draw_road, draw_scene)
-from app.synth.trajectory import camera_poses, fix_times
-from app.synth.world import road_for
+from app.synth.drive.trajectory import camera_poses, fix_times
+from app.synth.street.world import road_for
 
 MAX_FRAMES = 300  # render time: 300 frames of 1920x1080 take a few minutes
 APPROACH_M = (30.0, 40.0)  # straight road before the first and after the last turn

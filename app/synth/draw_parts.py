@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from app.pipeline.types import CameraModel
-from app.synth.lens import camera_from_fov, corner_radius_u
+from app.synth.camera.lens import camera_from_fov, corner_radius_u
 
 ASPECTS = {"4:3": (4 / 3, 640, 1440), "16:9": (16 / 9, 640, 1920), "wide": (3.3, 1000, 1920)}
 K2_RESAMPLES = 8  # a folding lens first gets new k2 draws, then a narrower field of view

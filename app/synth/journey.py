@@ -17,13 +17,13 @@ from app.synth.bundle import write_journey
 from app.synth.config import (KITTI_LIKE_CAMERA, STREAM_DET, STREAM_EFFECTS,  # noqa: F401
                               STREAM_FALSE_DET, STREAM_GPS, STREAM_GPS_CLOCK, STREAM_POSE,
                               SynthConfig)
-from app.synth.detect import (SignView, drop_missed, false_tracks, noisy_detections,
-                              visible_signs)
-from app.synth.effects import ImageEffects, image_effects
-from app.synth.render import CameraRays, Rendered, camera_rays, render_frame
-from app.synth.scene import Scene, build_scene
-from app.synth.trajectory import camera_poses, fix_times, noisy_gps, smooth_noise
-from app.synth.world import SignTruth, World, build_world
+from app.synth.camera.detect import (SignView, drop_missed, false_tracks, noisy_detections,
+                                     visible_signs)
+from app.synth.camera.effects import ImageEffects, image_effects
+from app.synth.camera.render import CameraRays, Rendered, camera_rays, render_frame
+from app.synth.camera.scene import Scene, build_scene
+from app.synth.drive.trajectory import camera_poses, fix_times, noisy_gps, smooth_noise
+from app.synth.street.world import SignTruth, World, build_world
 
 SCENERY_AHEAD_M = 40.0
 

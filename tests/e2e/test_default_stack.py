@@ -8,9 +8,9 @@ from __future__ import annotations
 import pytest
 
 from tests.utils.journeys import first_frames
+from tests.utils.results.map_support import map_sign_errors_m
+from tests.utils.results.service_support import sign_errors_m, truth_bbox
 from tests.utils.stack import auth, poll_journey, sqlite_stack, upload
-from tests.utils.map_support import map_sign_errors_m
-from tests.utils.service_support import sign_errors_m, truth_bbox
 
 pytestmark = pytest.mark.slow
 

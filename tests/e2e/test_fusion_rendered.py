@@ -1,6 +1,6 @@
 """Issue 5: N = 5 rendered journeys over one synthetic world, uploaded in two orders, give one map.
 
-The five journeys are ``bench.fusion``'s first five (world_seed 0, one turn; GPS noise seeds
+The five journeys are ``bench.paper.fusion``'s first five (world_seed 0, one turn; GPS noise seeds
 100-104, lanes 0, +0.8, -0.8, +1.6, -1.6 m, journey 3 with a constant 0.86 m GPS bias), cut to
 their first 30 frames (4-5 signs each). Each is uploaded through the real HTTP API to two
 independent services:
@@ -54,11 +54,11 @@ from app.pipeline.types import CameraModel
 from app.service.db.session import session_scope
 from app.service.db.models import CalibrationRow, JourneyRow
 from app.synth.journey import SynthConfig
-from bench.fusion import fusion_journeys
-from bench.metrics import truth_frame
+from bench.paper.fusion import fusion_journeys
+from bench.paper.metrics import truth_frame
 from tests.utils.journeys import synthetic_journey
+from tests.utils.results.service_support import sign_errors_m, truth_bbox
 from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, sqlite_stack, upload
-from tests.utils.service_support import sign_errors_m, truth_bbox
 
 pytestmark = [pytest.mark.slow, pytest.mark.postgres]
 

@@ -11,7 +11,7 @@ The camera's calibration is seeded as an earlier journey would leave it and the 
 test_two_hosts.py and test_fusion_rendered.py: what this module adds is the real stack, not the
 pipeline. Self-calibration through the service, the same ``jobs.run_journey`` on SQLite, is
 tests/e2e/test_default_stack.py's (its fx within 3 %, then reused for a straight journey); storing
-a self-calibration on PostgreSQL, tests/service/test_jobs.py's. Seeded, the uninterrupted run
+a self-calibration on PostgreSQL, tests/service/jobs/test_jobs.py's. Seeded, the uninterrupted run
 took 23 s instead of 60 s on the loaded 2-core machine (2026-11-28).
 """
 
@@ -31,9 +31,9 @@ from app.pipeline.types import CameraModel
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow, JourneySignRow
 from tests.e2e.test_fusion_rendered import seed_calibration
+from tests.utils.results.map_support import map_sign_errors_m
+from tests.utils.results.service_support import sign_errors_m, signs_enu, truth_bbox
 from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
-from tests.utils.map_support import map_sign_errors_m
-from tests.utils.service_support import sign_errors_m, signs_enu, truth_bbox
 
 pytestmark = [pytest.mark.slow, pytest.mark.postgres]
 

@@ -22,10 +22,10 @@ from sqlalchemy import func, select
 from app.pipeline.types import CameraModel
 from app.service.db.session import session_scope
 from app.service.db.models import JourneySignRow
-from tests.utils.backends import SESSION_TAG, s3_objects
-from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, upload
 from tests.e2e.test_fusion_rendered import seed_calibration
+from tests.utils.backends import SESSION_TAG, s3_objects
 from tests.utils.journeys import first_frames
+from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, upload
 
 pytestmark = [pytest.mark.postgres, pytest.mark.slow]
 TIMEOUT_S = 240

@@ -23,8 +23,8 @@ from app.service.db.models import JourneyRow
 from app.settings import Settings
 from tests.utils import bundle_factory as bf
 from tests.utils.backends import s3_objects
+from tests.utils.results.service_support import bf_zip
 from tests.utils.stack import ADMIN_KEY, Stack, auth, upload
-from tests.utils.service_support import bf_zip
 
 UNREACHABLE = "the bundle store is unreachable; try again later"
 

@@ -20,12 +20,12 @@ import pytest
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.types import BundleError, CameraModel
+from app.synth.camera.detect import project
+from app.synth.camera.lens import camera_from_fov, lens_ok
+from app.synth.camera.render import camera_rays
 from app.synth.corpus import CORPUS_FORMAT, write_corpus
-from app.synth.detect import project
 from app.synth.draw import draw_journey
 from app.synth.journey import SynthConfig, generate, write_bundle
-from app.synth.lens import camera_from_fov, lens_ok
-from app.synth.render import camera_rays
 
 SMALL_CAMERA = CameraModel(width=414, height=125, fx=959.2 / 3, fy=952.9 / 3,
                            cx=(694.4 + 0.5) / 3 - 0.5, cy=(241.7 + 0.5) / 3 - 0.5,

@@ -16,11 +16,11 @@ import pytest
 
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel
+from app.synth.camera.render import _sample, camera_rays, first_hits, render_frame
+from app.synth.camera.scene import _atlas, build_scene
+from app.synth.drive.trajectory import noisy_gps
 from app.synth.journey import KITTI_LIKE_CAMERA, SynthConfig, generate, write_bundle
-from app.synth.render import _sample, camera_rays, first_hits, render_frame
-from app.synth.scene import _atlas, build_scene
-from app.synth.trajectory import noisy_gps
-from app.synth.world import build_world
+from app.synth.street.world import build_world
 
 # A third of the KITTI-like camera's resolution, same lens: fast to render.
 SMALL_CAMERA = CameraModel(width=414, height=125, fx=959.2 / 3, fy=952.9 / 3,

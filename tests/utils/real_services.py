@@ -1,7 +1,7 @@
 """Real-service tests (marker ``postgres``: PostgreSQL + Redis; ``browser``: Chromium and
 Playwright): skipped where the service is missing, failed under CI, and listed at the end of the run
 with why (issue 13: `scripts/test.sh` used to skip them silently). Kept apart from ``conftest.py``
-so that this plugin imports nothing but pytest (``tests/test_real_service_skips.py`` runs it in an
+so that this plugin imports nothing but pytest (``tests/project/test_run_summary.py`` runs it in an
 inner session)."""
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ from app.service.auth import create_key, key_sha256
 from app.service.db.session import session_scope, upgrade
 from app.service.db.models import ApiKeyRow, JourneyRow
 from app.settings import Settings
-from bench.serve import child_env
+from bench.service.serve import child_env
 from tests.utils.backends import SESSION_TAG
 from tests.utils.paths import REPO
 

@@ -1,0 +1,2 @@
+"""The admin dashboard: its routes and sessions server side, and its pages in a real headless
+Chromium."""

@@ -16,11 +16,11 @@ import pytest
 from app.service.auth import create_key
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow
-from bench.serve import serve
-from tests.utils.dashboard_seed import add_journey, set_progress
+from bench.service.serve import serve
 from tests.utils.paths import REPO
-from tests.utils.stack import ADMIN_KEY, auth, make_settings, settings_env
 from tests.utils.real_services import service_unavailable
+from tests.utils.results.dashboard_seed import add_journey, set_progress
+from tests.utils.stack import ADMIN_KEY, auth, make_settings, settings_env
 
 CHROMIUM = Path("/usr/bin/chromium")
 SHOTS = REPO / "test-output"

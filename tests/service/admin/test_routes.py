@@ -13,7 +13,7 @@ from app.service.admin.session import COOKIE
 from app.service.db.session import session_scope
 from app.service.db.models import (AdminSessionRow, ApiKeyRow, CalibrationRow, JourneyRow, CoverageRow,
                                 JourneySignRow)
-from tests.utils.dashboard_seed import add_journey
+from tests.utils.results.dashboard_seed import add_journey
 from app.service.db.map_tiles import decode
 from tests.utils.stack import ADMIN_KEY, auth, sqlite_stack
 
@@ -132,7 +132,8 @@ def test_journey_page_shows_track_signs_calibration_and_crops(client, stack):
     assert "GPS track (5 frames)" in text and "signs (2)" in text
     assert "stop" in text and "yield" in text and "calibrate" in text and "1.50 s" in text
     assert "fx = 50" in text
-    # Each sign's 95 % radius and facing (tests/utils/service_support.py: 0.5 + 0.1 i m, 90 i deg).
+    # Each sign's 95 % radius and facing (tests/utils/results/service_support.py: 0.5 + 0.1 i m,
+    # 90 i deg).
     assert "95 % within 0.50 m · faces 0°" in text and "95 % within 0.60 m · faces 90°" in text
     crop_url = f"/admin/journeys/{journey_id}/crop.png?track=0&frame=000001"
     assert crop_url in text
@@ -188,7 +189,8 @@ def test_map_page_serves_leaflet_locally_and_passes_the_public_map_through(clien
     # The map draws the vector tiles: served through the same pass-through, byte for byte.
     assert 'src="/admin/static/app/vendor/Leaflet.VectorGrid.bundled.min.js"' in page
     assert client.get("/admin/static/app/vendor/Leaflet.VectorGrid.bundled.min.js").status_code == 200
-    tile = "/tiles/17/68600/45006.mvt"  # holds the seeded signs (tests/utils/dashboard_seed.py)
+    # this tile holds the seeded signs (tests/utils/results/dashboard_seed.py)
+    tile = "/tiles/17/68600/45006.mvt"
     passed = client.get(f"/admin/api{tile}")
     direct = client.get(f"/api/v1{tile}", headers=auth(ADMIN_KEY))
     assert passed.status_code == 200 and passed.content == direct.content

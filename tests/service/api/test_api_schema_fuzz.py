@@ -41,9 +41,9 @@ from app.commands.service import create_service_app
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow, MapSignRow
 from tests.utils import bundle_factory as bf
-from tests.utils import map_support as ms
+from tests.utils.results import map_support as ms
+from tests.utils.results.service_support import bf_zip, finish, made_result
 from tests.utils.stack import ADMIN_KEY, Stack, auth, make_settings, sqlite_stack, upload
-from tests.utils.service_support import bf_zip, finish, made_result
 
 EXAMPLES = int(os.environ.get("SIGNMAP_FUZZ_EXAMPLES", "25"))
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 from shapely import LineString
 
-from app.synth import textures
-from app.synth.layout import Layout, layout_world
-from app.synth.road import Road, TurnSpecs, build_road
+from app.synth.street import textures
+from app.synth.street.layout import Layout, layout_world
+from app.synth.street.road import Road, TurnSpecs, build_road
 
 REPEATED_FACADES = 3  # distinct textures when facades repeat
 FACADE_TEXEL_M = 0.03

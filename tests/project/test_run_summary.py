@@ -1,6 +1,8 @@
-"""The suite says which real-service tests (markers ``postgres`` and ``browser``) it skipped and
-why, and under CI a skipped real-service test fails the run (issue 13: `scripts/test.sh` used to
-skip them silently). Runs a small inner pytest session with the suite's ``RealServiceSkips``."""
+"""The end of a run says what it left out: which real-service tests (markers ``postgres`` and
+``browser``) it skipped and why, under CI a skipped real-service test failing the run (issue 13:
+`scripts/test.sh` used to skip them silently), and how many ``extended`` tests it deselected and
+how to run them (issue 64). Runs small inner pytest sessions with the suite's plugins
+(``RealServiceSkips``, ``ExtendedLeftOut``)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import sys
 
 import pytest
 
+from tests.utils.extended import RUN_THEM
 from tests.utils.paths import REPO
 from tests.utils.real_services import running_in_ci
 
@@ -131,3 +134,56 @@ def test_running_in_ci(monkeypatch, value, ci):
 
 def section_end(stdout: str) -> str:
     return _section(stdout)[-1]
+
+
+EXTENDED_CONFTEST = """\
+from tests.utils.extended import register_extended_left_out
+
+
+def pytest_configure(config):
+    register_extended_left_out(config)
+"""
+
+EXTENDED_TESTS = """\
+import pytest
+
+
+@pytest.mark.extended
+def test_long():
+    pass
+
+
+@pytest.mark.extended
+def test_longer():
+    pass
+
+
+def test_quick():
+    pass
+"""
+
+
+@pytest.mark.parametrize("workers", ["0", "2"])  # under pytest-xdist the workers deselect
+def test_the_run_says_how_many_extended_tests_it_left_out(tmp_path, workers):
+    (tmp_path / "conftest.py").write_text(EXTENDED_CONFTEST)
+    (tmp_path / "test_inner.py").write_text(EXTENDED_TESTS)
+    (tmp_path / "pytest.ini").write_text("[pytest]\naddopts = -m 'not extended'\n"
+                                         "markers =\n    extended\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("CI", "PYTEST_ADDOPTS")}
+    # Only xdist, not the dozen plugins installed: a worker then starts in a second, not twenty.
+    env.update(PYTHONPATH=str(REPO), PYTEST_DISABLE_PLUGIN_AUTOLOAD="1")
+
+    def run(*args: str) -> str:
+        out = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p",
+                              "xdist", "-n", workers, *args], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        return out.stdout
+
+    line = f"2 extended tests left out (to run them: {RUN_THEM})"
+    assert line in run()
+    assert "extended test" not in run("-m", "extended")
+
+
+def test_the_suite_counts_the_extended_tests_it_leaves_out(pytestconfig):
+    assert pytestconfig.pluginmanager.has_plugin("signmap-extended-left-out")

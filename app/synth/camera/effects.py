@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.synth.render import CameraRays, Rendered
-from app.synth.trajectory import smooth_noise
+from app.synth.camera.render import CameraRays, Rendered
+from app.synth.drive.trajectory import smooth_noise
 
 MAX_BLUR_PX = 8.0  # a pixel's blur streak is clipped here (the ground right beside the car)
 MAX_BLUR_SAMPLES = 9

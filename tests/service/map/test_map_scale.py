@@ -18,7 +18,7 @@ from app.service.db.session import session_scope
 from app.service.db.map_tiles import EXTENT, MEDIA_TYPE, Tile, decode
 from app.service.db.models import MapSignRow
 from app.service.db.queries import BBox
-from bench.map_data import ensure_loaded
+from bench.service.map_data import ensure_loaded
 from tests.utils.backends import PG_URL
 from tests.utils.stack import ADMIN_KEY, auth, make_settings, sqlite_stack
 
@@ -238,7 +238,7 @@ def test_health_answers_while_map_reads_queue(tmp_path):
 @pytest.mark.parametrize("database", ["sqlite", pytest.param("postgres",
                                                              marks=pytest.mark.postgres)])
 def test_bench_map_smoke(request, tmp_path, database):
-    from bench.map_bench import MapBenchOptions, run_map_bench
+    from bench.service.map_bench import MapBenchOptions, run_map_bench
 
     if database == "postgres":
         request.getfixturevalue("pg_url")  # skipped (or failed under CI) without PostgreSQL
@@ -270,7 +270,7 @@ def test_bench_map_smoke(request, tmp_path, database):
 
 def test_bench_map_cli_knows_the_scenarios():
     from bench import cli
-    from bench.map_load import SCENARIOS
+    from bench.service.map_load import SCENARIOS
 
     assert cli.SCENARIOS == SCENARIOS
     parser = cli.argparse.ArgumentParser()

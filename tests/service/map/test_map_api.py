@@ -16,9 +16,9 @@ from app.service.db.session import session_scope
 from app.service.db.map_read import page_query
 from app.service.db.models import utc_now
 from app.service.db.queries import BBox
-from tests.utils import map_support as ms
+from tests.utils.results import map_support as ms
+from tests.utils.results.service_support import bf_zip
 from tests.utils.stack import ADMIN_KEY, auth
-from tests.utils.service_support import bf_zip
 
 
 @pytest.fixture(scope="module")

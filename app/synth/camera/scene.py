@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.synth.textures import mip_chain, sign_polygon
-from app.synth.world import World
+from app.synth.street.textures import mip_chain, sign_polygon
+from app.synth.street.world import World
 
 MIP_LEVELS = 7
 MAX_HALF_PLANES = 8

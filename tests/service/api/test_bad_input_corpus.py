@@ -4,7 +4,7 @@ exact status, a fragment of the JSON ``detail``. For each, nothing may be stored
 no file under incoming/ or bundles/) and the server must still answer.
 
 Grow it with every finding: add a builder (``tests/utils/hostile_bundles.py`` or ``tests/utils/
-bundle_factory.py``) and a row. ``bench/hostile_uploads.py`` measures what the cases cost.
+bundle_factory.py``) and a row. ``bench/service/hostile_uploads.py`` measures what the cases cost.
 """
 
 from __future__ import annotations

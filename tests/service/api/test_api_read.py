@@ -9,8 +9,8 @@ from sqlalchemy.dialects import postgresql
 
 from app.service.db.session import session_scope
 from app.service.db.queries import BBox, map_signs_query
+from tests.utils.results.service_support import bf_zip, finish, made_result
 from tests.utils.stack import ADMIN_KEY, auth, upload
-from tests.utils.service_support import bf_zip, finish, made_result
 
 LAT, LON = 49.0112, 8.4185
 

@@ -13,9 +13,9 @@ from sqlalchemy import func, select
 from app.pipeline.bundle import read_bundle
 from app.service.db.session import session_scope
 from app.service.db.models import MapSignRow, MapSignMemberRow
-from tests.utils import map_support as ms
+from tests.utils.results import map_support as ms
+from tests.utils.results.service_support import bf_zip
 from tests.utils.stack import CeleryWorker, Stack, make_settings
-from tests.utils.service_support import bf_zip
 from worker.celery_app import FUSE_JOURNEY, make_celery
 
 pytestmark = pytest.mark.postgres

@@ -14,8 +14,8 @@ from app.pipeline.bundle import read_bundle
 from app.service.jobs import fusion
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow, JourneySignRow, MapSignRow, MapSignMemberRow
-from tests.utils import map_support as ms
-from tests.utils.service_support import bf_zip
+from tests.utils.results import map_support as ms
+from tests.utils.results.service_support import bf_zip
 
 
 @pytest.fixture(scope="module")

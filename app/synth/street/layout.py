@@ -1,6 +1,6 @@
 """Where things stand in a synthetic world: signs, building fronts with side walls, distant
 buildings seen through gaps, and isolated props (poles, cabinets, kiosks). Geometry only; the
-textures are made in ``app.synth.world``. All in local ENU metres, z up."""
+textures are made in ``app.synth.street.world``. All in local ENU metres, z up."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from shapely import LineString, MultiPoint, Polygon
 from shapely.ops import unary_union
 
-from app.synth.road import Road
+from app.synth.street.road import Road
 
 SIGN_CLASSES = ("stop", "yield", "speed_limit_50", "speed_limit_30", "no_entry", "priority",
                 "parking")

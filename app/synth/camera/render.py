@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 
 from app.pipeline.types import CameraModel
-from app.synth.lens import undistort_normalized
-from app.synth.scene import MIP_LEVELS, Atlas, Scene
+from app.synth.camera.lens import undistort_normalized
+from app.synth.camera.scene import MIP_LEVELS, Atlas, Scene
 
 SKY_ID = -1
 GROUND_ID = -2
@@ -70,7 +70,8 @@ def camera_rays(camera: CameraModel) -> CameraRays:
 
 def _fix_diverged(camera: CameraModel, und: np.ndarray, pix: np.ndarray) -> np.ndarray:
     """OpenCV's iteration stops short near the rim of some strong wide-angle lenses (see
-    ``app.synth.lens``): where its ray does not project back onto its pixel, take the robust one."""
+    ``app.synth.camera.lens``): where its ray does not project back onto its pixel, take the
+    robust one."""
     r2 = np.sum(und * und, axis=-1)
     radial = 1.0 + camera.k1 * r2 + camera.k2 * r2 * r2
     back = np.stack([und[..., 0] * radial * camera.fx + camera.cx,

@@ -13,8 +13,8 @@ from app.pipeline.types import StageReport
 from app.service.db.models import JourneyRow
 from app.service.db.session import session_scope
 from app.service.jobs import run
+from tests.utils.results.service_support import bf_zip, finish, made_result
 from tests.utils.stack import ADMIN_KEY, auth, sqlite_stack, upload
-from tests.utils.service_support import bf_zip, finish, made_result
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow
 from app.settings import Settings
 from tests.utils import bundle_factory as bf
-from tests.utils.service_support import made_result
+from tests.utils.results.service_support import made_result
 
 try:
     from app.service.jobs.fusion import store_and_fuse as _store_and_fuse

@@ -12,8 +12,8 @@ from app.service.jobs import state
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow, utc_now
 from tests.utils import bundle_factory as bf
+from tests.utils.results.service_support import bf_zip
 from tests.utils.stack import auth, poll_journey, sqlite_stack, upload
-from tests.utils.service_support import bf_zip
 
 NO_TURN = "the journey has no turn"
 

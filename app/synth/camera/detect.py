@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 
 from app.pipeline.types import CameraModel, Detection
-from app.synth.layout import SIGN_CLASSES
-from app.synth.lens import fold_radius
-from app.synth.render import first_hits
-from app.synth.scene import Scene
-from app.synth.world import SignTruth
+from app.synth.camera.lens import fold_radius
+from app.synth.camera.render import first_hits
+from app.synth.camera.scene import Scene
+from app.synth.street.layout import SIGN_CLASSES
+from app.synth.street.world import SignTruth
 
 MIN_RANGE_M = 3.0
 MAX_RANGE_M = 40.0

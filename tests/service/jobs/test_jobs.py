@@ -16,8 +16,8 @@ from app.service.db.session import session_scope
 from app.service.jobs.run import run_journey
 from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow, utc_now
 from tests.utils import bundle_factory as bf
+from tests.utils.results.service_support import bf_zip, finish, made_result
 from tests.utils.stack import upload
-from tests.utils.service_support import bf_zip, finish, made_result
 
 SIGNS = [("0", "stop", 49.0112, 8.4185, 114.0), ("1", "yield", 49.0113, 8.4185, 114.0)]
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.synth.trajectory import smooth_noise
+from app.synth.drive.trajectory import smooth_noise
 
 STEP_S = 0.005  # integration step: well under any frame or fix interval
 NOISE_STEP_S = 0.05

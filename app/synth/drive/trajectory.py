@@ -8,7 +8,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from app.synth.road import Road
+from app.synth.street.road import Road
 
 
 def smooth_noise(rng: np.random.Generator, n: int, sigma_samples: float,
