@@ -9,6 +9,7 @@ import json
 import logging
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 from app.commands.usage import (EXIT_BAD_INPUT, EXIT_CODES_HELP, EXIT_OK, EXIT_PIPELINE_FAILED,
@@ -20,11 +21,19 @@ DESCRIPTION = ("Runs the whole pipeline on one journey bundle: calibrates the ca
                "written as files.")
 
 
-def add_parser(sub) -> None:
+# What a --calibration file holds, for the help and the messages that ask for one.
+CALIBRATION_FILE = ("a JSON object with fx, fy, cx, cy (the camera's focal lengths and principal "
+                    "point, pixels) and optionally k1, k2 (its radial distortion), e.g. "
+                    "{\"fx\": 1000, \"fy\": 1000, \"cx\": 960, \"cy\": 540, \"k1\": -0.1, "
+                    "\"k2\": 0.01}")
+
+COMMANDS = {"process": "find the signs of one journey on this machine (no server needed)"}
+
+
+def add_parsers(sub) -> None:
     """``signmap process``."""
     p = sub.add_parser("process", description=DESCRIPTION, epilog=EXIT_CODES_HELP,
-                       help="find the signs of one journey on this machine (no server needed)",
-                       formatter_class=HelpFormatter)
+                       help=COMMANDS["process"], formatter_class=HelpFormatter)
     p.add_argument("bundle", help="the journey: a .zip of frames, GPS and sign detections as "
                    "described in docs/journey-format.md")
     p.add_argument("--out", default="signs.geojson",
@@ -35,7 +44,7 @@ def add_parser(sub) -> None:
                    "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
     p.add_argument("--calibration", default=None, metavar="CAMERA.json",
                    help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
-                   "needed for a journey without a turn to calibrate on")
+                   "used when the journey cannot calibrate itself, e.g. it has no turn")
     p.add_argument("--workdir", default=None,
                    help="keep the intermediate files (extracted frames, reconstructions) in this "
                    "directory (default: a temporary one, deleted at the end)")
@@ -62,7 +71,7 @@ def _input_file(path: str, what: str) -> Path:
     return p
 
 
-def _calibration(path: str) -> dict[str, float]:
+def read_calibration(path: str) -> dict[str, float]:
     """The camera parameters of a ``--calibration`` file: a JSON object with numeric fx, fy, cx, cy
     and optionally k1, k2."""
     p = _input_file(path, "calibration file")
@@ -72,9 +81,7 @@ def _calibration(path: str) -> dict[str, float]:
         raise BadInput(f"calibration file {path} is not valid JSON: {exc}") from None
     required = ("fx", "fy", "cx", "cy")
     if not isinstance(params, dict) or any(k not in params for k in required):
-        raise BadInput(f"calibration file {path} must be a JSON object with fx, fy, cx, cy "
-                       "(and optionally k1, k2), e.g. {\"fx\": 1000, \"fy\": 1000, \"cx\": 960, "
-                       "\"cy\": 540, \"k1\": -0.1, \"k2\": 0.01}")
+        raise BadInput(f"calibration file {path} must be {CALIBRATION_FILE}")
     for key in (*required, "k1", "k2"):
         value = params.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -87,15 +94,15 @@ def run_process(args) -> int:
     from app.commands.process_report import _progress_printer, report, stage_summary
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
-    from app.pipeline.run import process_journey
-    from app.pipeline.types import BundleError, CameraModel, PipelineError
+    from app.pipeline.run import known_camera_used, process_journey
+    from app.pipeline.types import BundleError, CameraModel, NoTurnError, PipelineError
     from app.settings import Settings
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         bundle = _input_file(args.bundle, "bundle")
-        params = _calibration(args.calibration) if args.calibration else None
+        params = read_calibration(args.calibration) if args.calibration else None
     except BadInput as exc:
         print(f"signmap process: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -116,18 +123,32 @@ def run_process(args) -> int:
             result = process_journey(journey, settings.pipeline, workdir / "work",
                                      known_camera=known, progress=_progress_printer(),
                                      verbose=args.verbose)
+        except NoTurnError as exc:
+            # The failing stage's report ends in the service's advice; this command has its own.
+            stage_summary(exc.report[:-1], stream=sys.stderr)
+            print(f"signmap process: the journey could not be processed at stage {exc.stage}: "
+                  f"{exc.finding}, and a straight road cannot calibrate the camera: pass its "
+                  f"calibration with --calibration CAMERA.json, {CALIBRATION_FILE}",
+                  file=sys.stderr)
+            return EXIT_PIPELINE_FAILED
         except PipelineError as exc:
             stage_summary(exc.report, stream=sys.stderr)
             print(f"signmap process: the journey could not be processed at stage {exc.stage}: "
                   f"{exc.reason}", file=sys.stderr)
             return EXIT_PIPELINE_FAILED
+    source = result.calibration.source
+    if source == "supplied":  # the pipeline's words are the service's, for a stored calibration
+        source = f"given in {args.calibration}"
+        stored = known_camera_used(journey.camera_id)
+        result.report = [replace(r, summary=r.summary.replace(stored, f"calibration {source} used"))
+                         for r in result.report]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(feature_collection(journey_sign_features(result.signs)), indent=1))
     report_path = Path(args.report) if args.report else out.with_suffix(".report.json")
     report_path.write_text(json.dumps(report(result, journey.warnings), indent=1))
     stage_summary(result.report)
     cal = result.calibration.camera
-    print(f"calibration ({result.calibration.source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
+    print(f"calibration ({source}): fx={cal.fx:.1f} fy={cal.fy:.1f} "
           f"cx={cal.cx:.1f} cy={cal.cy:.1f} k1={cal.k1:.3f} k2={cal.k2:.3f}")
     for s in result.signs:
         alt = "" if s.alt_m is None else f" alt {s.alt_m:.2f} m"

@@ -11,12 +11,13 @@ from typing import Sequence
 from app.pipeline.types import INTRINSICS_STD, JourneyResult, StageReport
 
 
-def _progress_printer(stream=sys.stderr):
+def _progress_printer(stream=None):
+    """``stream`` None: sys.stderr as it is at each line (not as it was at import)."""
     t0 = time.perf_counter()
 
     def progress(stage: str, fraction: float, message: str = "") -> None:
         print(f"[{time.perf_counter() - t0:6.1f}s] {fraction * 100:5.1f}%  {stage:<12} {message}",
-              file=stream, flush=True)
+              file=stream or sys.stderr, flush=True)
     return progress
 
 
@@ -33,7 +34,7 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                         "rotation_deg": cal.rotation_deg, "windows": cal.windows,
                         # Stage 2's own standard deviations (None: not given). Real errors on the
                         # corpus run about 2-3x these at the median, 4-11x at p90
-                        # (bench/results/2026-11-28-calib-spread.md).
+                        # (docs/decisions/calib-misses.md).
                         "stage2_std": {k: (v if math.isfinite(v) else None)
                                        for k, v in zip(INTRINSICS_STD, cal.intrinsics_std)}},
         "timings_s": result.timings_s,
@@ -47,7 +48,7 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
     }
 
 
-def stage_summary(reports: Sequence[StageReport], stream=sys.stdout) -> None:
-    """One line per stage that ran: what it found or why it failed."""
+def stage_summary(reports: Sequence[StageReport], stream=None) -> None:
+    """One line per stage that ran: what it found or why it failed (``stream`` None: stdout)."""
     for r in reports:
-        print(f"{r.stage:<12} {r.summary}", file=stream)
+        print(f"{r.stage:<12} {r.summary}", file=stream or sys.stdout)

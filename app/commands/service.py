@@ -8,11 +8,15 @@ import argparse
 import logging
 from typing import TYPE_CHECKING
 
-from app.service.db.models import ROLES
-from app.settings import Settings
-
 if TYPE_CHECKING:
     from fastapi import FastAPI
+
+    from app.settings import Settings
+
+COMMANDS = {"serve": "run the HTTP API (and, without a broker, the jobs too)",
+            "worker": "run a job worker (needs SIGNMAP_BROKER_URL)",
+            "db": "database maintenance: `signmap db upgrade`",
+            "keys": "API keys: `signmap keys create`"}
 
 
 def create_service_app(settings: Settings | None = None) -> FastAPI:
@@ -20,6 +24,7 @@ def create_service_app(settings: Settings | None = None) -> FastAPI:
     broker is configured, else the embedded worker (``app.service.app.create_app``'s own choice).
     ``signmap serve`` runs it; ``uvicorn --factory app.commands.service:create_service_app`` too."""
     from app.service.app import create_app
+    from app.settings import Settings
 
     settings = settings or Settings()
     if not settings.broker_url:
@@ -32,6 +37,9 @@ def create_service_app(settings: Settings | None = None) -> FastAPI:
 def _logging(settings: Settings) -> None:
     logging.basicConfig(level=settings.log_level,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # Alembic's INFO lines (the SQL dialect on every start, each migration's notes) are for whoever
+    # writes migrations; `signmap db upgrade` says in one line what it did.
+    logging.getLogger("alembic").setLevel(logging.WARNING)
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -39,6 +47,7 @@ def serve(args: argparse.Namespace) -> int:
 
     from app.service import startup
     from app.service.db.session import upgrade
+    from app.settings import Settings
 
     settings = Settings()
     _logging(settings)
@@ -76,6 +85,7 @@ def worker(args: argparse.Namespace) -> int:
 def db_upgrade(args: argparse.Namespace) -> int:
     from app.service import startup
     from app.service.db.session import upgrade
+    from app.settings import Settings
 
     settings = Settings()
     _logging(settings)
@@ -83,10 +93,14 @@ def db_upgrade(args: argparse.Namespace) -> int:
     try:
         if url.startswith("sqlite"):
             startup.check_data_dir(settings.data_dir)
-        startup.current_revision(url)
+        before = startup.current_revision(url)
     except startup.StartupError as exc:
         raise SystemExit(f"signmap db upgrade: {exc}") from None
     upgrade(url, args.revision)
+    after = startup.current_revision(url)
+    print(f"database {startup.safe_url(url)}: "
+          + (f"already at schema revision {after}" if after == before else
+             f"schema revision {before or 'none'} -> {after}"))
     return 0
 
 
@@ -94,6 +108,7 @@ def keys_create(args: argparse.Namespace) -> int:
     from app.service import startup
     from app.service.auth import create_key
     from app.service.db.session import session_scope
+    from app.settings import Settings
 
     settings = Settings()
     try:
@@ -110,8 +125,9 @@ def keys_create(args: argparse.Namespace) -> int:
 
 def add_parsers(sub) -> None:
     from app.commands.usage import show_help
+    from app.service.db.models import ROLES
 
-    p = sub.add_parser("serve", help="run the HTTP API (and, without a broker, the jobs too)",
+    p = sub.add_parser("serve", help=COMMANDS["serve"],
                        description="Runs the HTTP API. With nothing configured it keeps its data "
                        "in SQLite under SIGNMAP_DATA_DIR (default ./signmap-data) and runs the "
                        "jobs itself; with SIGNMAP_BROKER_URL set, `signmap worker` runs them. "
@@ -123,7 +139,7 @@ def add_parsers(sub) -> None:
                    help="TCP port to listen on (default: %(default)s)")
     p.set_defaults(func=serve)
 
-    p = sub.add_parser("worker", help="run a job worker (needs SIGNMAP_BROKER_URL)",
+    p = sub.add_parser("worker", help=COMMANDS["worker"],
                        description="Runs a Celery worker that processes uploaded journeys from "
                        "the queue at SIGNMAP_BROKER_URL (e.g. redis://127.0.0.1:6379/0); start "
                        "as many as there are cores to spare.")
@@ -131,7 +147,7 @@ def add_parsers(sub) -> None:
                    help="this worker's node name, e.g. w1@%%h (default: Celery's, celery@HOST)")
     p.set_defaults(func=worker)
 
-    p = sub.add_parser("db", help="database maintenance: `signmap db upgrade`",
+    p = sub.add_parser("db", help=COMMANDS["db"],
                        description="Database maintenance (the database at SIGNMAP_DATABASE_URL, "
                        "default SQLite under SIGNMAP_DATA_DIR).")
     p.set_defaults(func=show_help(p))
@@ -144,7 +160,7 @@ def add_parsers(sub) -> None:
                    help="schema revision to migrate to (default: %(default)s, the newest)")
     q.set_defaults(func=db_upgrade)
 
-    p = sub.add_parser("keys", help="API keys: `signmap keys create`",
+    p = sub.add_parser("keys", help=COMMANDS["keys"],
                        description="API keys for the HTTP API and the dashboard.")
     p.set_defaults(func=show_help(p))
     keys_sub = p.add_subparsers(dest="keys_command", metavar="COMMAND")

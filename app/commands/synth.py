@@ -6,13 +6,17 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from app.synth.journey import SynthConfig, write_bundle
+if TYPE_CHECKING:
+    from app.synth.journey import SynthConfig
+
+COMMANDS = {"synth": "render a synthetic journey bundle plus its ground truth"}
 
 
-def add_parser(sub) -> None:
+def add_parsers(sub) -> None:
     """``signmap synth`` and ``signmap synth corpus``."""
-    p = sub.add_parser("synth", help="render a synthetic journey bundle plus its ground truth",
+    p = sub.add_parser("synth", help=COMMANDS["synth"],
                        description="Renders a synthetic journey (frames, GPS, detections) into "
                        "OUT/bundle.zip and the true sign positions and camera into "
                        "OUT/truth.json. `signmap synth corpus` renders a varied set of them.")
@@ -52,6 +56,8 @@ def add_parser(sub) -> None:
 
 def config_from_args(args) -> SynthConfig:
     """A SynthConfig from parsed ``signmap synth`` arguments (options not given keep defaults)."""
+    from app.synth.journey import SynthConfig
+
     opt = {
         "seed": getattr(args, "seed", 0),
         "n_frames": getattr(args, "frames", 120),
@@ -81,6 +87,8 @@ def run_corpus(args) -> int:
 
 
 def run_synth(args) -> int:
+    from app.synth.journey import write_bundle
+
     if getattr(args, "synth_command", None) == "corpus":
         return run_corpus(args)
     if args.out is None:

@@ -1,4 +1,4 @@
-"""Dashboard sessions hold an opaque token, not an API key (issue 13).
+"""Dashboard sessions hold an opaque token, not an API key.
 
 Drops the old sessions' own admin keys ("dashboard-session of ..." rows of api_keys): their cookies
 carried them readable and they worked as Bearer keys, so every one of them is revoked here.

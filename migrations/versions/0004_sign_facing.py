@@ -1,4 +1,4 @@
-"""Signs get the compass direction they face and a 95 % horizontal radius (issue 12).
+"""Signs get the compass direction they face and a 95 % horizontal radius.
 
 Revision ID: 0004
 Revises: 0003

@@ -1,6 +1,7 @@
-"""Map reads at scale (issues 13 and 15): one partial covering index on the live map signs,
-``(lat_deg, lon_deg, id)`` with every column a page shows, the same on PostgreSQL and SQLite,
-replacing the GiST point index (PostgreSQL) and the lat/lon index (SQLite).
+"""Map reads at scale: one partial covering index on the live map signs.
+
+The index is ``(lat_deg, lon_deg, id)`` with every column a page shows, the same on PostgreSQL and
+SQLite, replacing the GiST point index (PostgreSQL) and the lat/lon index (SQLite).
 
 GET /signs pages walk it in its order (a keyset on lat, lon, id); a tile's clusters and fusion's
 region read it without the table. Measured on 1 M signs (bench/results/2026-11-25-map.md): a city

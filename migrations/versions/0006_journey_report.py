@@ -1,6 +1,7 @@
-"""Journeys keep the pipeline's per-stage report (issue 14): a JSON list of
-``{"stage", "summary", "details": [...]}``, one per stage that ran (a failed journey's ends with the
-stage that failed); NULL for journeys processed before reports existed.
+"""Journeys keep the pipeline's per-stage report.
+
+A JSON list of ``{"stage", "summary", "details": [...]}``, one per stage that ran (a failed
+journey's ends with the stage that failed); NULL for journeys processed before reports existed.
 
 Revision ID: 0006
 Revises: 0005

@@ -4,7 +4,11 @@
 its members' mean position, with ``count``, the smallest member ``id`` as its representative, and
 ``class``/``state`` when all members share one. A single sign always carries its own ``id``,
 ``class`` and ``state`` with ``count`` 1, and ``facing_deg`` (compass bearing of its face) when
-known."""
+known.
+
+A tile also holds the signs and clusters just outside it whose circle on the dashboard's map
+reaches into it (at coordinates beyond 0..EXTENT): each tile is drawn on its own, and a circle
+drawn only by the tile holding its centre was cut at that tile's edge."""
 
 from __future__ import annotations
 
@@ -29,6 +33,11 @@ EXTENT = 4096
 LAYER = "signs"
 MEDIA_TYPE = "application/vnd.mapbox-vector-tile"
 MAX_LAT = math.degrees(math.atan(math.sinh(math.pi)))  # 85.0511..., the square world's edge
+# The largest circles the dashboard's map draws (admin/static/map.js, ``style``), stroke included,
+# in screen pixels of a TILE_PX tile: a sign's, and a cluster's (it grows with its count).
+TILE_PX = 256
+SIGN_RADIUS_PX = 8
+CLUSTER_RADIUS_PX = 23
 
 
 @dataclass(frozen=True)
@@ -47,10 +56,13 @@ class Tile:
             raise ValueError(f"at zoom {z} x and y must be within [0, {n - 1}], got x={x} y={y}")
         return cls(z, x, y)
 
-    def bbox(self) -> BBox:
+    def bbox(self, pad: float = 0.0) -> BBox:
+        """The tile's box, grown by ``pad`` tile widths on every side (up to the world's edge)."""
         n = 2 ** self.z
-        return BBox(min_lon=self.x / n * 360.0 - 180.0, min_lat=_lat(self.y + 1, n),
-                    max_lon=(self.x + 1) / n * 360.0 - 180.0, max_lat=_lat(self.y, n))
+        return BBox(min_lon=max(-180.0, (self.x - pad) / n * 360.0 - 180.0),
+                    min_lat=_lat(min(n, self.y + 1 + pad), n),
+                    max_lon=min(180.0, (self.x + 1 + pad) / n * 360.0 - 180.0),
+                    max_lat=_lat(max(0.0, self.y - pad), n))
 
     def pixels(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """(N, 2) tile coordinates, y down, 0..EXTENT."""
@@ -74,20 +86,26 @@ def _points(conn: Connection, box: BBox, cap: int) -> list[tuple] | None:
     return None if len(rows) > cap else [(1, *r) for r in rows]
 
 
-def _clusters(conn: Connection, box: BBox, grid: int) -> list[tuple]:
-    """(count, id, class, state, lon, lat, facing None) per non-empty cell of a grid x grid split of ``box``;
-    class and state None where the members differ. Everything read is in the covering index."""
+def _clusters(conn: Connection, tile: Tile, grid: int) -> list[tuple]:
+    """(count, id, class, state, lon, lat, facing None) per non-empty cell of a grid x grid split of
+    the tile's box, and of the cells around it as far as a cluster's circle reaches; class and
+    state None where the members differ. Everything read is in the covering index."""
     floor = func.floor if conn.dialect.name == "postgresql" else (
         lambda v: cast(v, Integer))  # SQLite: truncation is floor for the non-negative offsets here
+    box = tile.bbox()
+    around = math.ceil(CLUSTER_RADIUS_PX * grid / TILE_PX)  # cells beyond each edge
     cw = (box.max_lon - box.min_lon) / grid
     ch = (box.max_lat - box.min_lat) / grid
-    cx = floor((MapSignRow.lon_deg - box.min_lon) / cw)
-    cy = floor((MapSignRow.lat_deg - box.min_lat) / ch)
+    # Cells counted from the outermost, so that those inside are the tile's own grid's.
+    cx = floor((MapSignRow.lon_deg - (box.min_lon - around * cw)) / cw)
+    cy = floor((MapSignRow.lat_deg - (box.min_lat - around * ch)) / ch)
+    reach = BBox(max(-180.0, box.min_lon - around * cw), max(-90.0, box.min_lat - around * ch),
+                 min(180.0, box.max_lon + around * cw), min(90.0, box.max_lat + around * ch))
     rows = conn.execute(
         select(func.count(), func.min(MapSignRow.id), func.min(MapSignRow.cls), func.max(MapSignRow.cls),
                func.min(MapSignRow.state), func.max(MapSignRow.state), func.avg(MapSignRow.lon_deg),
                func.avg(MapSignRow.lat_deg))
-        .where(live_in_bbox(box)).group_by(cx, cy)).all()
+        .where(live_in_bbox(reach)).group_by(cx, cy)).all()
     return [(n, first, cls_lo if cls_lo == cls_hi else None,
              st_lo if st_lo == st_hi else None, lon, lat, None)
             for n, first, cls_lo, cls_hi, st_lo, st_hi, lon, lat in rows]
@@ -95,10 +113,10 @@ def _clusters(conn: Connection, box: BBox, grid: int) -> list[tuple]:
 
 def tile_features(conn: Connection, tile: Tile, *, points_min_zoom: int, max_points: int,
                   grid: int) -> list[dict[str, Any]]:
-    box = tile.bbox()
-    found = _points(conn, box, max_points) if tile.z >= points_min_zoom else None
+    found = (_points(conn, tile.bbox(pad=SIGN_RADIUS_PX / TILE_PX), max_points)
+             if tile.z >= points_min_zoom else None)
     if found is None:
-        found = _clusters(conn, box, grid)
+        found = _clusters(conn, tile, grid)
     lonlat = np.array([(r[4], r[5]) for r in found], dtype=float).reshape(-1, 2)
     points = shapely.points(tile.pixels(lonlat[:, 0], lonlat[:, 1]))
     features = []

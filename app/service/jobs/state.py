@@ -127,7 +127,7 @@ def consensus(cameras: list[CameraModel], agree_rel: float
     indices of its members; (None, []) for none.
 
     A single self-calibration can be accepted wrong (13 % off in fx on a corpus check journey,
-    bench/results/2026-11-29-check929.md). Reused as "the camera", it would misplace every later
+    docs/decisions/camera-calibration-consensus.md). Reused as "the camera", it would misplace every later
     journey that cannot calibrate itself and flag every right one as disagreeing; a majority of
     the camera's journeys outvotes it. The mean, not a median per parameter: the distortion
     1 + k1 r^2 + k2 r^4 is linear in (k1, k2), so the mean camera has the mean curve."""

@@ -1,11 +1,13 @@
 // The sign map: the service's vector tiles (GET /api/v1/tiles/{z}/{x}/{y}.mvt, through the
 // dashboard's same-origin pass-through, which adds the session's key server-side), drawn by
 // Leaflet.VectorGrid as SVG. A point with count 1 is a sign; a larger count is a cluster of that
-// many (low zoom, or a crowded tile): clicking it zooms in.
+// many (low zoom, or a crowded tile): clicking it zooms in. The legend above the map (map.html)
+// draws the same circles, and lists the classes in view in their colours.
 "use strict";
 (function () {
   const el = document.getElementById("map");
   const status = document.getElementById("map-status");
+  const legendClasses = document.getElementById("legend-classes");
   const map = L.map(el, {preferCanvas: false});
   Signmap.addTiles(map, el.dataset.tileUrl);
 
@@ -28,13 +30,33 @@
     if (shown.isOpen()) shown.setContent(popup(p));
   }
 
+  // CSS class of each sign class drawn, for the legend's list of the classes in view.
+  const classTokens = new Map();
+  function classToken(cls) {
+    const token = "class-" + String(cls).replace(/[^A-Za-z0-9_-]/g, "_");
+    classTokens.set(token, cls);
+    return token;
+  }
+
+  // The radii, strokes included, stay within what a tile reaches out for (SIGN_RADIUS_PX and
+  // CLUSTER_RADIUS_PX of app/service/db/map_tiles.py), and the legend (map.html) draws these.
   function style(p) {
     if (p.count > 1) {
       return {radius: Math.min(22, 7 + 2.5 * Math.log2(p.count)), fill: true, fillOpacity: 0.75,
               fillColor: "#555", color: "#fff", weight: 2, className: "sign-cluster"};
     }
     return {radius: 7, fill: true, fillOpacity: 0.9, fillColor: Signmap.classColor(p.class),
-            color: "#222", weight: 1, className: `sign-marker state-${p.state || "journey"}`};
+            color: "#222", weight: 1,
+            className: `sign-marker state-${p.state || "journey"} ${classToken(p.class)}`};
+  }
+
+  function showClassesInView() {
+    const shown = [...classTokens].filter(([token]) => el.querySelector(`.sign-marker.${token}`))
+      .map(([, cls]) => cls).sort();
+    legendClasses.innerHTML = shown.length ? " (" + shown.map(cls =>
+      `<svg width="12" height="12" aria-hidden="true"><circle cx="6" cy="6" r="5" ` +
+      `fill="${Signmap.classColor(cls)}" stroke="#222" stroke-width="1"/></svg> ` +
+      Signmap.escape(cls)).join(", ") + ")" : "";
   }
 
   // Leaflet asks a clicked small circle for its position (getLatLng); VectorGrid 1.3's tile-drawn
@@ -68,6 +90,7 @@
     const n = el.querySelectorAll(".sign-marker").length;
     const clusters = el.querySelectorAll(".sign-cluster").length;
     status.textContent = `${n} signs in view` + (clusters ? ` and ${clusters} cluster${clusters > 1 ? "s" : ""} (zoom in)` : "");
+    showClassesInView();
   });
 
   async function start() {
