@@ -35,6 +35,13 @@ class Settings(BaseSettings):
         "https://tile.openstreetmap.org/{z}/{x}/{y}.png",
         description="base map tiles of the dashboard; without them signs show on a plain background")
     admin_session_max_age_s: int = Field(12 * 3600, description="dashboard sign-in lifetime")
+    # Key guessing (see docs/service.md, "Keys and roles").
+    auth_failure_limit: int = Field(
+        10, ge=1, description="failed dashboard sign-ins and unknown Bearer keys one client "
+                              "address may make within auth_failure_window_s; past it, 429")
+    auth_failure_window_s: float = Field(
+        60.0, gt=0, description="how long a failed sign-in or unknown key counts against its "
+                                "client address")
 
     # Leftovers of crashes (see docs/service.md, "Jobs and recovery").
     incoming_max_age_s: float = Field(

@@ -8,7 +8,9 @@ A killed worker's journey is also recovered from the database: see ``worker.task
 from __future__ import annotations
 
 from celery import Celery
+from celery.signals import after_setup_logger, after_setup_task_logger
 
+from app import logs
 from app.settings import Settings
 
 RUN_JOURNEY = "signmap.run_journey"
@@ -33,6 +35,13 @@ def make_celery(settings: Settings) -> Celery:
         broker_connection_retry_on_startup=True,
     )
     return app
+
+
+@after_setup_logger.connect
+@after_setup_task_logger.connect
+def _escape_log_lines(logger, **_kwargs) -> None:
+    # Celery sets up its own handlers; their lines are escaped as the service's are (app.logs).
+    logs.install(logger)
 
 
 settings = Settings()

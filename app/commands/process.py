@@ -91,6 +91,7 @@ def read_calibration(path: str) -> dict[str, float]:
 
 def run_process(args) -> int:
     """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
+    from app import logs
     from app.commands.process_report import _progress_printer, report, stage_summary
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
@@ -98,8 +99,7 @@ def run_process(args) -> int:
     from app.pipeline.types import BundleError, CameraModel, NoTurnError, PipelineError
     from app.settings import Settings
 
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logs.configure(logging.INFO if args.verbose else logging.WARNING)
     try:
         bundle = _input_file(args.bundle, "bundle")
         params = read_calibration(args.calibration) if args.calibration else None

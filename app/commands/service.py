@@ -1,6 +1,6 @@
-"""Service subcommands of ``signmap``: serve, worker, db upgrade, keys create; and the composition of
-the API with its job queue (``create_service_app``), the one place that knows both the service
-(``app.service``) and the Celery worker (``worker``)."""
+"""Service subcommands of ``signmap``: serve, worker, db upgrade, keys create/list/revoke; and the
+composition of the API with its job queue (``create_service_app``), the one place that knows both
+the service (``app.service``) and the Celery worker (``worker``)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 COMMANDS = {"serve": "run the HTTP API (and, without a broker, the jobs too)",
             "worker": "run a job worker (needs SIGNMAP_BROKER_URL)",
             "db": "database maintenance: `signmap db upgrade`",
-            "keys": "API keys: `signmap keys create`"}
+            "keys": "API keys: `signmap keys create`, `list`, `revoke`"}
 
 
 def create_service_app(settings: Settings | None = None) -> FastAPI:
@@ -35,8 +35,9 @@ def create_service_app(settings: Settings | None = None) -> FastAPI:
 
 
 def _logging(settings: Settings) -> None:
-    logging.basicConfig(level=settings.log_level,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from app import logs
+
+    logs.configure(settings.log_level)  # one line per record: control characters escaped
     # Alembic's INFO lines (the SQL dialect on every start, each migration's notes) are for whoever
     # writes migrations; `signmap db upgrade` says in one line what it did.
     logging.getLogger("alembic").setLevel(logging.WARNING)
@@ -104,10 +105,9 @@ def db_upgrade(args: argparse.Namespace) -> int:
     return 0
 
 
-def keys_create(args: argparse.Namespace) -> int:
+def _keys_database(command: str) -> str:
+    """The URL of the database `signmap keys COMMAND` works on, once it is found usable."""
     from app.service import startup
-    from app.service.auth import create_key
-    from app.service.db.session import session_scope
     from app.settings import Settings
 
     settings = Settings()
@@ -116,11 +116,58 @@ def keys_create(args: argparse.Namespace) -> int:
             startup.check_data_dir(settings.data_dir)
         startup.check_database(settings.effective_database_url)
     except startup.StartupError as exc:
-        raise SystemExit(f"signmap keys create: {exc}") from None
-    with session_scope(settings.effective_database_url) as session:
+        raise SystemExit(f"signmap keys {command}: {exc}") from None
+    return settings.effective_database_url
+
+
+def keys_create(args: argparse.Namespace) -> int:
+    from app.service.auth import create_key
+    from app.service.db.session import session_scope
+
+    with session_scope(_keys_database("create")) as session:
         key = create_key(session, args.role, args.name)
     print(key)
     return 0
+
+
+def _when(moment) -> str:
+    return moment.strftime("%Y-%m-%d %H:%M:%SZ") if moment is not None else "-"
+
+
+def keys_list(args: argparse.Namespace) -> int:
+    from app.service.auth import list_keys
+    from app.service.db.session import session_scope
+
+    with session_scope(_keys_database("list")) as session:
+        rows = [(str(k.id), k.role, k.name or "-", _when(k.created_at),
+                 _when(k.last_used_at) if k.last_used_at else "never", _when(k.revoked_at))
+                for k in list_keys(session)]
+    table = [("ID", "ROLE", "NAME", "CREATED", "LAST USED", "REVOKED"), *rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+    for row in table:
+        print("  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip())
+    return 0
+
+
+def keys_revoke(args: argparse.Namespace) -> int:
+    from app.service.auth import UnknownKey, revoke_key
+    from app.service.db.session import session_scope
+
+    try:
+        with session_scope(_keys_database("revoke")) as session:
+            row, revoked = revoke_key(session, args.id)
+            what = f"key {row.id} ({row.role}, {row.name or 'no name'})"
+            when = _when(row.revoked_at)
+    except UnknownKey as exc:
+        raise SystemExit(f"signmap keys revoke: {exc} (`signmap keys list` shows them)") from None
+    print(f"{what} revoked" if revoked else f"{what} was already revoked at {when}")
+    return 0
+
+
+def _key_id(text: str) -> int:
+    if not (text.isascii() and text.isdigit()) or not 1 <= int(text) < 2**31:
+        raise argparse.ArgumentTypeError(f"not a key id: {text!r}")
+    return int(text)
 
 
 def add_parsers(sub) -> None:
@@ -172,3 +219,16 @@ def add_parsers(sub) -> None:
     q.add_argument("--role", required=True, choices=ROLES, help="what the key may do")
     q.add_argument("--name", default="", help="who the key is for, e.g. van-3")
     q.set_defaults(func=keys_create)
+    q = keys_sub.add_parser("list", help="list the keys (never the keys themselves)",
+                            description="Lists every stored key: id, role, name, when it was "
+                            "created, last used (to within a minute) and revoked, in UTC. The "
+                            "keys themselves are not stored, so they cannot be shown; "
+                            "SIGNMAP_ADMIN_KEY is not listed.")
+    q.set_defaults(func=keys_list)
+    q = keys_sub.add_parser("revoke", help="revoke a key: refused from its next request on",
+                            description="Revokes the key with this id (from `signmap keys "
+                            "list`): the API refuses it from its next request on (401) and its "
+                            "dashboard sign-ins end. Its row stays, with the journeys it "
+                            "uploaded. Revoking a revoked key changes nothing.")
+    q.add_argument("id", type=_key_id, help="the key's id, as `signmap keys list` shows it")
+    q.set_defaults(func=keys_revoke)

@@ -4,6 +4,13 @@ Row numbers in messages are line numbers of the file as a user sees it in an edi
 the header is row 1, the first data row is row 2. Blank rows are skipped; extra columns are ignored;
 values are stripped of surrounding whitespace. Tables stream: a row is parsed, checked and
 dropped before the next is read, and a row limit stops a long table as soon as it is passed.
+
+Every value a bundle carries into the job is bounded here or by its reader, so that input fails
+the upload with a message naming file, row and field rather than the job with an internal error:
+numbers are finite and in the range the field can physically take (``parse_float``), text is at
+most ``MAX_TEXT_CHARS`` long and holds no control character (``check_text``: PostgreSQL text
+cannot hold NUL, and a newline in a logged id forges log lines). Values echoed in messages are
+shortened and escaped (``shown``).
 """
 
 from __future__ import annotations
@@ -12,9 +19,18 @@ import csv
 import io
 import math
 import operator
+import re
 from typing import BinaryIO, Iterator, Sequence, TextIO
 
 from app.pipeline.types import BundleError
+
+# The width of the service's text columns (camera ids, classes, track ids): longer text is refused
+# at the upload rather than failing the job when it is stored.
+MAX_TEXT_CHARS = 200
+# C0 and C1 controls, DEL, and the Unicode line and paragraph separators (a line break to some
+# log readers).
+CONTROL_CHARS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+_SHOWN_CHARS = 60
 
 
 def decode_text(data: bytes, file_name: str) -> str:
@@ -83,13 +99,46 @@ def iter_table(source: str | BinaryIO, file_name: str, required: Sequence[str],
                           ) from None
 
 
-def parse_float(text: str, where: str) -> float:
-    """A finite decimal number, or a BundleError naming ``where`` (e.g. "gps.csv row 7: lat")."""
+def quoted(text: str) -> str:
+    """``text`` quoted as a message may echo it: control characters escaped, cut to
+    ``_SHOWN_CHARS`` characters (a 10,000-character value is not sent back whole)."""
+    if len(text) <= _SHOWN_CHARS:
+        return repr(text)
+    return f"{text[:_SHOWN_CHARS]!r}... ({len(text)} characters)"
+
+
+def shown(text: str) -> str:
+    """``text`` as is when short and printable, else ``quoted``."""
+    if 0 < len(text) <= _SHOWN_CHARS and text.isprintable() and text.strip() == text:
+        return text
+    return quoted(text)
+
+
+def check_text(text: str, where: str, max_chars: int = MAX_TEXT_CHARS) -> str:
+    """``text`` unchanged, or a BundleError naming ``where`` when it is longer than ``max_chars``
+    or holds a control character."""
+    if len(text) > max_chars:
+        raise BundleError(f"{where} is {len(text)} characters long, more than the limit of "
+                          f"{max_chars}")
+    bad = CONTROL_CHARS.search(text)
+    if bad:
+        raise BundleError(f"{where} holds a control character ({bad.group()!r} at character "
+                          f"{bad.start() + 1}); ids and classes must be printable text")
+    return text
+
+
+def parse_float(text: str, where: str, low: float = -math.inf, high: float = math.inf,
+                unit: str = "") -> float:
+    """A finite decimal number within [low, high], or a BundleError naming ``where`` (e.g.
+    "gps.csv row 7: lat")."""
     try:
         value = float(text)
     except ValueError:
-        shown = repr(text[:40]) if text else "empty"
-        raise BundleError(f"{where} is {shown}, expected a number") from None
+        raise BundleError(f"{where} is {quoted(text) if text else 'empty'}, expected a number"
+                          ) from None
     if not math.isfinite(value):
-        raise BundleError(f"{where} is {text!r}, expected a finite number")
+        raise BundleError(f"{where} is {quoted(text)}, expected a finite number")
+    if not low <= value <= high:
+        raise BundleError(f"{where} is {text if len(text) <= _SHOWN_CHARS else f'{value:g}'}, "
+                          f"outside [{low:g}, {high:g}]{unit}")
     return value

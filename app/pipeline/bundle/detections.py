@@ -19,13 +19,14 @@ from typing import BinaryIO, Sequence
 
 import numpy as np
 
-from app.pipeline.bundle.csv_table import iter_table, parse_float
+from app.pipeline.bundle.csv_table import (MAX_TEXT_CHARS, check_text, iter_table, parse_float,
+                                           shown)
 from app.pipeline.types import BundleError, Detection
 
 BORDER_TOLERANCE_PX = 1.0
 # The longest class the map stores (journey_signs.class, map_signs.class are this wide): a longer
 # one is refused at the upload rather than failing the job when its signs are written.
-MAX_CLASS_CHARS = 200
+MAX_CLASS_CHARS = MAX_TEXT_CHARS
 
 
 @dataclass(frozen=True)
@@ -89,28 +90,34 @@ def read_detections(source: str | BinaryIO, frame_ids: Sequence[str], width: int
         if f is None:
             where = f"detection row {row}"
             raise BundleError(f"{where} has no frame" if not frame else
-                              f"{where} names frame {frame} which is not in frames/")
+                              f"{where} names frame {shown(frame)} which is not in frames/")
         per_frame[f] += 1
         if per_frame[f] > max_boxes:
             raise BundleError(f"detection row {row}: frame {frame} has more than {max_boxes} "
                               "detection boxes, the limit per frame")
         if not cls:
             raise BundleError(f"detection row {row} has an empty class")
-        if len(cls) > MAX_CLASS_CHARS:
-            raise BundleError(f"detection row {row}: class is {len(cls)} characters long, more "
-                              f"than the limit of {MAX_CLASS_CHARS}")
+        if cls not in classes:  # each distinct value is checked once
+            check_text(cls, f"detection row {row}: class", MAX_CLASS_CHARS)
+        if track_id and track_id not in tracks:
+            # Ids are free text, but bounded: a 5000-digit id broke the job's natural sort.
+            check_text(track_id, f"detection row {row}: track_id")
         try:  # the fast path formats no message for a valid row
             x1, y1, x2, y2 = map(float, coords)
         except ValueError:
             x1, y1, x2, y2 = _box(coords, row)
         if not isfinite(x1 + y1 + x2 + y2):
             x1, y1, x2, y2 = _box(coords, row)
+        if not (lo_x <= x1 <= hi_x and lo_x <= x2 <= hi_x and lo_y <= y1 <= hi_y
+                and lo_y <= y2 <= hi_y):
+            name, value = next((n, v) for n, v, lo, hi in (
+                ("x1", x1, lo_x, hi_x), ("y1", y1, lo_y, hi_y), ("x2", x2, lo_x, hi_x),
+                ("y2", y2, lo_y, hi_y)) if not lo <= v <= hi)
+            raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} lies outside "
+                              f"the {width}x{height} image ({name} is {value:g})")
         if not (x1 < x2 and y1 < y2):
             raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} is empty or "
                               "inverted; need x1 < x2 and y1 < y2")
-        if x1 < lo_x or y1 < lo_y or x2 > hi_x or y2 > hi_y:
-            raise BundleError(f"detection row {row}: box {_shown(x1, y1, x2, y2)} lies outside "
-                              f"the {width}x{height} image")
         frame_col.append(f)
         track_col.append(tracks.setdefault(track_id, len(tracks)) if track_id else -1)
         cls_col.append(classes.setdefault(cls, len(classes)))

@@ -53,7 +53,7 @@ from typing import BinaryIO, Sequence
 import numpy as np
 from pyproj import Geod
 
-from app.pipeline.bundle.csv_table import iter_table, parse_float
+from app.pipeline.bundle.csv_table import check_text, iter_table, parse_float
 from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.types import BundleError
 
@@ -66,6 +66,14 @@ MIN_COVERED_FRAMES = 10
 MAX_JUMP_M = 100.0
 MAX_SPEED_MPS = 100.0
 MAX_ACCURACY_M = 1000.0  # a stated accuracy beyond this is no fix worth the name
+# Altitudes a vehicle's receiver can report (the Dead Sea shore is at -430 m, ellipsoidal heights
+# differ from sea level by at most ~110 m; aircraft stay below 20 km). Beyond them a value is no
+# altitude, and one such as 1e308 turned the job's fits into NaN.
+MIN_ALT_M, MAX_ALT_M = -1000.0, 20000.0
+# Timestamps are seconds from any origin, Unix time included (1.7e9 today), before it too (the
+# contract sets no sign); larger is no clock it means (milliseconds, or an overflow that breaks the
+# interpolation).
+MAX_TIMESTAMP_S = 1e10
 
 
 @dataclass(frozen=True)
@@ -122,6 +130,12 @@ class FrameGps:
         if stated is None or not np.isfinite(stated).any():
             return None
         return float(np.median(stated[np.isfinite(stated)]))
+
+
+def check_altitude(alt_m: float, where: str) -> None:
+    if not MIN_ALT_M <= alt_m <= MAX_ALT_M:
+        raise BundleError(f"{where}: altitude {alt_m:g} m is outside [{MIN_ALT_M:g}, "
+                          f"{MAX_ALT_M:g}] m")
 
 
 def check_position(lat_deg: float, lon_deg: float, where: str) -> None:
@@ -253,14 +267,17 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
     rows = iter_table(source, "gps.csv", ("frame", "timestamp_s", "lat", "lon"),
                       ("alt_m", "accuracy_m"), max_rows=max_rows)
     frame_t: dict[str, tuple[float, int]] = {}
+    known = set(frame_ids)
     # Compact columns: a long table costs 40 bytes per fix, not a Python object per value.
     t_fix, lat_fix, lon_fix, alt_fix, acc_fix, rows_fix = (
         array("d"), array("d"), array("d"), array("d"), array("d"), array("q"))
     bad_accuracy: list[int] = []
     for row, (frame, t_text, lat_text, lon_text, alt_text, acc_text) in rows:
         where = f"gps.csv row {row}"
-        t = parse_float(t_text, f"{where}: timestamp_s")
+        t = parse_float(t_text, f"{where}: timestamp_s", -MAX_TIMESTAMP_S, MAX_TIMESTAMP_S, " s")
         if frame:
+            if frame not in known and frame not in frame_t:
+                check_text(frame, f"{where}: frame")
             if frame in frame_t and frame_t[frame][0] != t:
                 raise BundleError(f"{where} gives frame {frame} timestamp {t:g}, but row "
                                   f"{frame_t[frame][1]} gave it {frame_t[frame][0]:g}")
@@ -272,7 +289,8 @@ def gps_from_csv(source: str | BinaryIO, frame_ids: Sequence[str], *,
         lat = parse_float(lat_text, f"{where}: lat")
         lon = parse_float(lon_text, f"{where}: lon")
         check_position(lat, lon, where)
-        alt = parse_float(alt_text, f"{where}: alt_m") if alt_text else math.nan
+        alt = (parse_float(alt_text, f"{where}: alt_m", MIN_ALT_M, MAX_ALT_M, " m")
+               if alt_text else math.nan)
         accuracy = _stated_accuracy_m(acc_text)
         if acc_text and math.isnan(accuracy):
             bad_accuracy.append(row)
@@ -352,8 +370,11 @@ def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> Gps
             when = parse_iso_time(children["time"], f"{where}: time")
             t0 = t0 or when
             t_s.append((when - t0).total_seconds())
-            alts.append(parse_float(children["ele"], f"{where}: ele") if children.get("ele")
-                        else math.nan)
+            if abs(t_s[-1]) > MAX_TIMESTAMP_S:
+                raise BundleError(f"{where}: time {children['time'][:40]!r} is {t_s[-1]:g} s from "
+                                  f"the first track point, more than {MAX_TIMESTAMP_S:g} s")
+            alts.append(parse_float(children["ele"], f"{where}: ele", MIN_ALT_M, MAX_ALT_M, " m")
+                        if children.get("ele") else math.nan)
             lats.append(lat), lons.append(lon)
             elem.clear()
             if open_elements:

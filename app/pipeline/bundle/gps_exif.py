@@ -20,8 +20,8 @@ from typing import Sequence
 import numpy as np
 from PIL import ExifTags, Image
 
-from app.pipeline.bundle.gps import (FrameGps, check_frame_times, check_plausible_motion,
-                                     check_position)
+from app.pipeline.bundle.gps import (MAX_TIMESTAMP_S, FrameGps, check_altitude,
+                                     check_frame_times, check_plausible_motion, check_position)
 from app.pipeline.types import BundleError
 
 NO_GPS_MESSAGE = "bundle has no GPS: add gps.csv, gps.gpx, or EXIF GPS tags to every JPEG frame"
@@ -102,7 +102,7 @@ def read_exif_fix(image_bytes: bytes) -> ExifFix | None:
         try:
             day = datetime.strptime(date, "%Y:%m:%d").replace(tzinfo=timezone.utc)
             gps_utc = datetime.fromtimestamp(day.timestamp() + time_of_day, timezone.utc)
-        except ValueError:
+        except (ValueError, OverflowError, OSError):  # a time of day far past the calendar
             gps_utc = None
     if not (math.isfinite(lat) and math.isfinite(lon)):
         return None
@@ -116,6 +116,8 @@ def gps_from_exif(fixes: Sequence[ExifFix | None], frame_ids: Sequence[str]) -> 
         if fix is None:
             raise BundleError(f"{NO_GPS_MESSAGE} (frame {frame} has no EXIF GPS position)")
         check_position(fix.lat_deg, fix.lon_deg, f"frame {frame} EXIF GPS")
+        if math.isfinite(fix.alt_m):
+            check_altitude(fix.alt_m, f"frame {frame} EXIF GPS")
     fixes = [f for f in fixes if f is not None]
     if all(f.gps_utc for f in fixes):
         t_s = [(f.gps_utc - fixes[0].gps_utc).total_seconds() for f in fixes]
@@ -132,6 +134,10 @@ def gps_from_exif(fixes: Sequence[ExifFix | None], frame_ids: Sequence[str]) -> 
         raise BundleError("frames carry different kinds of EXIF time; every frame needs the same "
                           "one (GPSDateStamp+GPSTimeStamp, DateTimeOriginal or GPSTimeStamp)")
     timestamp_s = np.array(t_s, dtype=float)
+    if np.any(np.abs(timestamp_s) > MAX_TIMESTAMP_S):
+        i = int(np.argmax(np.abs(timestamp_s) > MAX_TIMESTAMP_S))
+        raise BundleError(f"frame {frame_ids[i]} EXIF time is {timestamp_s[i]:g} s from the first "
+                          f"frame's, more than {MAX_TIMESTAMP_S:g} s")
     check_frame_times(timestamp_s, frame_ids, strict=False)
     gps = FrameGps(timestamp_s, np.array([f.lat_deg for f in fixes]),
                    np.array([f.lon_deg for f in fixes]), np.array([f.alt_m for f in fixes]))

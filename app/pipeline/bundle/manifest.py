@@ -8,22 +8,26 @@ import json
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from app.pipeline.bundle.csv_table import decode_text
+from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS, decode_text
 from app.pipeline.bundle.gps import parse_iso_time
 from app.pipeline.types import BundleError, CameraModel
 
 FORMAT = "signmap-journey/1"
+# Bounds of a camera prior that any real camera keeps (pixels; radial coefficients): a hint beyond
+# them is no camera, and a value such as 1e308 would turn the self-calibration into NaN.
+MAX_PRIOR_PX = 1e6
+MAX_PRIOR_K = 100.0
 
 
 class CameraPrior(BaseModel):
     model_config = ConfigDict(extra="ignore", strict=True, allow_inf_nan=False)
 
-    fx: float = Field(gt=0)
-    fy: float = Field(gt=0)
-    cx: float
-    cy: float
-    k1: float = 0.0
-    k2: float = 0.0
+    fx: float = Field(gt=0, le=MAX_PRIOR_PX)
+    fy: float = Field(gt=0, le=MAX_PRIOR_PX)
+    cx: float = Field(ge=-MAX_PRIOR_PX, le=MAX_PRIOR_PX)
+    cy: float = Field(ge=-MAX_PRIOR_PX, le=MAX_PRIOR_PX)
+    k1: float = Field(0.0, ge=-MAX_PRIOR_K, le=MAX_PRIOR_K)
+    k2: float = Field(0.0, ge=-MAX_PRIOR_K, le=MAX_PRIOR_K)
 
     def camera(self, width: int, height: int) -> CameraModel:
         return CameraModel(width=width, height=height, fx=self.fx, fy=self.fy, cx=self.cx,
@@ -35,16 +39,19 @@ class Manifest(BaseModel):
 
     format: str
     # The lengths of the service's columns; PostgreSQL refuses longer text and any NUL.
-    camera_id: str = Field(max_length=200)
-    vehicle_id: str | None = Field(None, max_length=200)
+    camera_id: str = Field(max_length=MAX_TEXT_CHARS)
+    vehicle_id: str | None = Field(None, max_length=MAX_TEXT_CHARS)
     captured_at: str | None = Field(None, max_length=64)
     camera_prior: CameraPrior | None = None
 
     @field_validator("camera_id", "vehicle_id", "captured_at")
     @classmethod
-    def _no_nul(cls, value: str | None) -> str | None:
-        if value is not None and "\x00" in value:
-            raise ValueError("must not contain NUL characters")
+    def _printable(cls, value: str | None) -> str | None:
+        # NUL breaks PostgreSQL; a newline in a logged camera id forged a log line.
+        bad = None if value is None else CONTROL_CHARS.search(value)
+        if bad:
+            raise ValueError(f"must not contain control characters ({bad.group()!r} at "
+                             f"character {bad.start() + 1})")
         return value
 
     @field_validator("camera_id")
@@ -65,11 +72,17 @@ class Manifest(BaseModel):
         return value
 
 
+def _parse_int(digits: str) -> int | float:
+    # Python refuses to convert integers of more than 4300 digits (a ValueError naming no field);
+    # as a float such a number is infinite, which the field it stands in then refuses by name.
+    return int(digits) if len(digits) <= 400 else float(digits)
+
+
 def parse_manifest(data: bytes) -> Manifest:
     """``manifest.json`` bytes -> Manifest, or a BundleError saying what to fix."""
     text = decode_text(data, "manifest.json")
     try:
-        obj = json.loads(text)
+        obj = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
         raise BundleError(f"manifest.json is not valid JSON: {exc}") from None
     except RecursionError:

@@ -35,6 +35,7 @@ import numpy as np
 from PIL import Image, JpegImagePlugin, PngImagePlugin
 
 from app.pipeline.bundle.associate import assign_tracks, sort_detections
+from app.pipeline.bundle.csv_table import check_text, shown
 from app.pipeline.bundle.detections import DetectionTable, read_detections
 from app.pipeline.bundle.gps import FrameGps, gps_from_csv, gps_from_gpx
 from app.pipeline.bundle.gps_exif import gps_from_exif, read_exif_fix
@@ -88,6 +89,8 @@ def _frame_entries(names: list[str]) -> list[tuple[str, str]]:
         if (folder != "frames" or "/" in base or not dot or not stem or stem.startswith(".")
                 or ext not in FRAME_EXTENSIONS):
             continue
+        # The stem is the frame id stored with every observation and echoed in messages.
+        check_text(stem, f"frame file name {shown(base)}")
         if stem in by_stem:
             raise BundleError(f"frames {by_stem[stem].split('/')[1]} and {base} have the same "
                               "stem; keep one file per frame")

@@ -10,6 +10,7 @@ from typing import Annotated
 from urllib.parse import urlsplit
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Query, Request
+from fastapi import Path as PathParam
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
@@ -20,9 +21,11 @@ from app.service.admin.session import (COOKIE, DashboardSession, cookie_args, cu
 from app.service.api.routes import journeys as journey_routes
 from app.service.api.routes import map as map_routes
 from app.service.api.routes import tiles as tile_routes
+from app.service.api.schemas import echoed_id
+from app.service.auth import RevokedKey, UnknownKey, list_keys, revoke_key
 from app.service.db import crud
 from app.service.db.models import STATUSES, CoverageRow, JourneyRow, JourneySignRow
-from app.service.deps import SessionDep, SettingsDep
+from app.service.deps import SessionDep, SettingsDep, count_failure, refuse_if_throttled
 
 log = logging.getLogger(__name__)
 templates = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -51,9 +54,19 @@ def login_form(request: Request) -> HTMLResponse:
 def login(request: Request, settings: SettingsDep, session: SessionDep,
           key: Annotated[str, Form()] = "") -> Response:
     _same_origin(request)
-    cookie = sign_in(session, settings, key.strip()) if key.strip() else None
+    try:
+        refuse_if_throttled(request)  # before the key is looked at: the right one is refused too
+    except HTTPException as exc:
+        page = _page(request, "login.html", exc.status_code, error=exc.detail)
+        page.headers.update(exc.headers or {})
+        return page
+    try:
+        cookie = sign_in(session, settings, key.strip()) if key.strip() else None
+    except RevokedKey:
+        return _page(request, "login.html", 403, error="this key was revoked")
     if cookie is None:
         log.info("dashboard sign-in refused from %s", request.client.host if request.client else "?")
+        count_failure(request, "dashboard sign-in refused")
         return _page(request, "login.html", 403, error="not an admin key")
     response = RedirectResponse("/admin/journeys", status_code=303)
     response.set_cookie(value=cookie, **cookie_args(request, settings))
@@ -118,7 +131,7 @@ def delete(request: Request, journey_id: journey_routes.JourneyId, signed_in: Si
 def _journey(session, journey_id: str) -> JourneyRow:
     row = session.get(JourneyRow, journey_id)
     if row is None:
-        raise HTTPException(404, f"journey {journey_id} not found")
+        raise HTTPException(404, f"journey {echoed_id(journey_id)} not found")
     return row
 
 
@@ -191,3 +204,23 @@ def cameras(request: Request, _signed_in: SignedIn, settings: SettingsDep,
                  for camera, rows in by_camera.items()}
     return _page(request, "cameras.html", by_camera=by_camera, charts=charts,
                  consensus=consensus, agree_pct=100 * settings.calibration_flag_rel)
+
+
+@router.get("/keys")
+def keys(request: Request, _signed_in: SignedIn, session: SessionDep) -> HTMLResponse:
+    return _page(request, "keys.html", keys=list_keys(session))
+
+
+@router.post("/keys/{key_id}/revoke")
+def revoke(request: Request, key_id: Annotated[int, PathParam(ge=1, le=2**31 - 1)],
+           signed_in: SignedIn, session: SessionDep) -> Response:
+    _same_origin(request)
+    try:
+        row, revoked = revoke_key(session, key_id)
+    except UnknownKey as exc:
+        raise HTTPException(404, str(exc)) from exc
+    if revoked:
+        log.info("key %d (%s, %r) revoked from the dashboard by %r", row.id, row.role,
+                 row.name, signed_in.principal.name)
+    # Revoking the key this session signed in with ended the session: the page sends to sign-in.
+    return RedirectResponse("/admin/keys", status_code=303)

@@ -38,7 +38,7 @@ class DashboardSession:
 
 def sign_in(session: Session, settings: Settings, key: str) -> str | None:
     """The cookie value (a fresh opaque token) for a valid admin ``key``; None for an unknown or
-    non-admin key."""
+    non-admin key (``auth.RevokedKey`` for a revoked one)."""
     token = secrets.token_urlsafe(32)
     principal = lookup_key(session, key, settings.admin_key)
     if principal is None or principal.role != "admin":
@@ -59,7 +59,7 @@ def current_session(request: Request, settings: SettingsDep, session: SessionDep
         raise NotSignedIn
     digest = key_sha256(token)
     row = session.execute(
-        select(AdminSessionRow.key_id, AdminSessionRow.name, ApiKeyRow.role)
+        select(AdminSessionRow.key_id, AdminSessionRow.name, ApiKeyRow.role, ApiKeyRow.revoked_at)
         .outerjoin(ApiKeyRow, ApiKeyRow.id == AdminSessionRow.key_id)
         .where(AdminSessionRow.token_sha256 == digest, AdminSessionRow.expires_at > utc_now())
     ).first()
@@ -68,8 +68,8 @@ def current_session(request: Request, settings: SettingsDep, session: SessionDep
         raise NotSignedIn
     if row.key_id is None and not settings.admin_key:  # the environment's key was unset since
         raise NotSignedIn
-    if row.key_id is not None and row.role != "admin":  # the key is gone (or not admin)
-        raise NotSignedIn
+    if row.key_id is not None and (row.role != "admin" or row.revoked_at is not None):
+        raise NotSignedIn  # the key is gone, revoked (which deletes its sessions too) or not admin
     return DashboardSession(token_sha256=digest,
                             principal=Principal(key_id=row.key_id, role="admin", name=row.name))
 

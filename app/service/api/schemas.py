@@ -11,6 +11,16 @@ JOURNEY_ID_EXAMPLE = "6f1c2a3e-8d4b-4f7e-9a51-0c2d3e4f5a6b"
 # Ids and text filters in paths and queries: PostgreSQL text cannot hold NUL, so one with NUL is
 # refused as invalid input (422) instead of failing in the database (a 500, found by fuzzing).
 NO_NUL = r"^[^\x00]*$"
+# How much of a requested id an error detail echoes: a real id is far shorter (a journey's is 36
+# characters, a map sign's at most 64), and a 60 KB one was sent back whole (issue 70).
+MAX_ECHOED_ID_CHARS = 64
+
+
+def echoed_id(value: str) -> str:
+    """``value`` as an error detail may echo it: cut to ``MAX_ECHOED_ID_CHARS`` with an ellipsis."""
+    if len(value) <= MAX_ECHOED_ID_CHARS:
+        return value
+    return value[:MAX_ECHOED_ID_CHARS - 1] + "\u2026"
 
 
 class ErrorOut(BaseModel):
@@ -20,8 +30,12 @@ class ErrorOut(BaseModel):
 
 # The error answers every route with a key can give (``responses=`` of the route decorators).
 AUTH_ERRORS: dict[int | str, dict[str, Any]] = {
-    401: {"model": ErrorOut, "description": "no or unknown API key"},
+    401: {"model": ErrorOut, "description": "no, unknown or revoked API key"},
     403: {"model": ErrorOut, "description": "the key's role may not make this call"},
+    429: {"model": ErrorOut, "description": "too many unknown keys from this client address; "
+                                            "any key is refused until Retry-After seconds pass",
+          "headers": {"Retry-After": {"description": "seconds to wait",
+                                      "schema": {"type": "integer"}}}},
 }
 
 

@@ -49,6 +49,10 @@ class ApiKeyRow(Base):
     role: Mapped[str] = mapped_column(String(16))
     key_sha256: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    # Set when revoked: the key is refused from then on, and the row stays for the journeys it owns.
+    revoked_at: Mapped[datetime | None]
+    # Last authentication, to within ``auth.LAST_USED_EVERY_S``: a read does not write every time.
+    last_used_at: Mapped[datetime | None]
 
 
 class AdminSessionRow(Base):

@@ -17,6 +17,7 @@ import queue
 import signal
 import threading
 
+from app import logs
 from app.service.jobs import state
 from app.service.db.session import session_scope
 from app.service.jobs.sweep import sweep_work
@@ -33,8 +34,7 @@ def _exit_on_signal(signum: int, _frame) -> None:
 def _child_main(journey_id: str, settings: Settings) -> None:
     os.setpgid(0, 0)
     signal.signal(signal.SIGTERM, _exit_on_signal)
-    logging.basicConfig(level=settings.log_level,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logs.configure(settings.log_level)
     from app.service.jobs.run import run_journey
 
     run_journey(journey_id, settings)

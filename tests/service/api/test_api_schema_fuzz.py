@@ -52,7 +52,10 @@ CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,
 # SQLite database are made then; the fixtures fill the databases when a test runs.
 ROOT = Path(tempfile.mkdtemp(prefix="signmap-fuzz-"))
 atexit.register(shutil.rmtree, ROOT, ignore_errors=True)
-SQLITE = sqlite_stack(ROOT / "data")
+# Schemathesis sends keys of its own making: many unknown keys from one address, which the API
+# would throttle (429 for every key) long before the runs reach every route.
+UNTHROTTLED = dict(auth_failure_limit=10**9)
+SQLITE = sqlite_stack(ROOT / "data", **UNTHROTTLED)
 SQLITE_APP = create_service_app(SQLITE.settings)
 schema = schemathesis.openapi.from_asgi("/openapi.json", SQLITE_APP)
 STATUSES: Counter = Counter()  # (backend, operation, status) of every call, for the coverage test
@@ -100,7 +103,7 @@ def sqlite_target():
 @pytest.fixture(scope="module")
 def postgres_target(own_pg_url, tmp_path_factory):
     stack = Stack("postgres", make_settings(tmp_path_factory.mktemp("fuzz-pg") / "data",
-                                            database_url=own_pg_url))
+                                            database_url=own_pg_url, **UNTHROTTLED))
     return _seed(stack, create_service_app(stack.settings))
 
 
@@ -188,10 +191,12 @@ def test_a_nul_in_an_id_or_filter_is_a_422(stack, path):
 
 
 @pytest.mark.parametrize("field, value, detail", [
-    ("camera_id", "cam\u0000", "camera_id: Value error, must not contain NUL characters"),
-    ("vehicle_id", "van\u0000", "vehicle_id: Value error, must not contain NUL characters"),
+    ("camera_id", "cam\u0000",
+     "camera_id: Value error, must not contain control characters ('\\x00' at character 4)"),
+    ("vehicle_id", "van\u0000",
+     "vehicle_id: Value error, must not contain control characters ('\\x00' at character 4)"),
     ("captured_at", "2026-11-20T08:15:00Z\u0000",
-     "captured_at: Value error, must not contain NUL characters"),
+     "captured_at: Value error, must not contain control characters ('\\x00' at character 21)"),
     ("camera_id", "c" * 201, "camera_id: String should have at most 200 characters"),
     ("vehicle_id", "v" * 201, "vehicle_id: String should have at most 200 characters"),
 ])

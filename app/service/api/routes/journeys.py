@@ -19,7 +19,7 @@ from app.pipeline.bundle import check_bundle
 from app.pipeline.types import BundleError
 from app.service import storage
 from app.service.api.schemas import (AUTH_ERRORS, NO_NUL, ErrorOut, JourneyAccepted, JourneyOut,
-                                     SignCollection)
+                                     SignCollection, echoed_id)
 from app.service.api.upload import FIELD, receive_bundle
 from app.service.auth import Principal
 from app.service.db import crud, queries
@@ -42,7 +42,7 @@ def _own_journey(session: Session, journey_id: str, who: Principal) -> JourneyRo
     row = session.get(JourneyRow, journey_id)
     # Another fleet's journey answers 404 like a missing one: ids are not disclosed across fleets.
     if row is None or not who.owns(row.owner_key_id):
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {echoed_id(journey_id)} not found")
     return row
 
 
@@ -178,6 +178,7 @@ def delete_journey(request: Request, journey_id: JourneyId, who: Admin,
     try:
         found = fusion.delete_journey_and_bundle(settings, request.app.state.store, journey_id)
     except fusion.JourneyRunning:
-        raise HTTPException(status.HTTP_409_CONFLICT, f"journey {journey_id} is running") from None
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"journey {echoed_id(journey_id)} is running") from None
     if not found:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {journey_id} not found")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"journey {echoed_id(journey_id)} not found")

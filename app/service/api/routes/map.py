@@ -11,7 +11,7 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Res
 from sqlalchemy import func, select
 
 from app.service.api.schemas import (AUTH_ERRORS, NO_NUL, ErrorOut, MapChanges,
-                                     MapSignCollection, MapSignState)
+                                     MapSignCollection, MapSignState, echoed_id)
 from app.service.db.map_read import heavy_read, parse_cursor, read_connection, signs_page_json
 from app.service.db.models import MapSignRow
 from app.service.db.queries import BBox, map_sign_feature, map_sign_members
@@ -99,7 +99,7 @@ def get_map_sign(session: SessionDep, sign_id: Annotated[str, Path(pattern=NO_NU
                  ) -> dict[str, Any]:
     row = session.get(MapSignRow, sign_id)
     if row is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"map sign {sign_id} not found")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"map sign {echoed_id(sign_id)} not found")
     return map_sign_feature(
         row, evidence=row.evidence, cov_enu=row.cov_enu, members=map_sign_members(session, sign_id),
         removed_at=row.removed_at.isoformat() if row.removed_at else None)
