@@ -20,13 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline.bundle.gps import GpsFixes, NumberedLabels, interpolate_to_frames
-from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.geometry.gps_track import smoothed_positions
 from app.pipeline.geometry.similarity import align_trajectory
-from app.synth.draw import draw_journey
-from app.synth.journey import generate
+from bench.studies.turn_detection import corpus_gps
 
 WINDOW_FRAMES = 80
 WINDOW_STRIDE = 64
@@ -44,13 +41,9 @@ class JourneyScales:
 
 
 def journey_scales(seed: int) -> JourneyScales:
-    cfg, params = draw_journey(seed)
-    j = generate(cfg)
+    gps = corpus_gps(seed)
+    j, params, frames, origin = gps.journey, gps.params, gps.frames, gps.origin
     t_fix = j.fix_timestamps_s
-    fixes = GpsFixes(t_fix, j.lat_deg, j.lon_deg, j.alt_m,
-                     NumberedLabels("fix", np.arange(len(t_fix))))
-    frames = interpolate_to_frames(fixes, j.timestamps_s, j.frame_ids)
-    origin = frame_at(float(frames.lat_deg[0]), float(frames.lon_deg[0]), None)
     xyz_lines = origin.to_local(frames.lat_deg, frames.lon_deg, None)
     xyz_fix = origin.to_local(j.lat_deg, j.lon_deg, None)
     xyz_fix[:, 2] = np.nan  # horizontal only, as the corpus's journeys carry no altitude

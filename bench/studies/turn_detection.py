@@ -21,13 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline.bundle.gps import GpsFixes, NumberedLabels, interpolate_to_frames
+from app.pipeline.bundle.gps import FrameGps, GpsFixes, NumberedLabels, interpolate_to_frames
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry.geodesy import frame_at
+from app.pipeline.geometry.geodesy import LocalFrame, frame_at
 from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.steps.plan import turns_and_candidates
 from app.synth.draw import draw_journey, rotation_covered
-from app.synth.journey import generate
+from app.synth.journey import SynthJourney, generate
 
 TURN_DEG = 45.0  # a journey with a true turn at least this large must calibrate
 GENTLE_DEG = 30.0  # ... and one whose largest is under this must not find a turn
@@ -46,15 +46,30 @@ class JourneyTrack:
     gps_noise_m: float | None = None
 
 
-def journey_track(seed: int) -> JourneyTrack:
+@dataclass
+class CorpusGps:
+    """A corpus journey, generated without rendering, with its GPS read as the pipeline reads it."""
+
+    journey: SynthJourney
+    params: dict
+    frames: FrameGps  # the fixes interpolated to the frames
+    origin: LocalFrame  # at the first frame
+
+
+def corpus_gps(seed: int) -> CorpusGps:
     cfg, params = draw_journey(seed)
     j = generate(cfg)
-    t_fix = j.fix_timestamps_s
-    fixes = GpsFixes(t_fix, j.lat_deg, j.lon_deg, j.alt_m,
-                     NumberedLabels("fix", np.arange(len(t_fix))))
+    fixes = GpsFixes(j.fix_timestamps_s, j.lat_deg, j.lon_deg, j.alt_m,
+                     NumberedLabels("fix", np.arange(len(j.fix_timestamps_s))))
     frames = interpolate_to_frames(fixes, j.timestamps_s, j.frame_ids)
-    origin = frame_at(float(frames.lat_deg[0]), float(frames.lon_deg[0]), None)
-    xy_m = origin.to_local(frames.lat_deg, frames.lon_deg, None)[:, :2]
+    return CorpusGps(j, params, frames,
+                     frame_at(float(frames.lat_deg[0]), float(frames.lon_deg[0]), None))
+
+
+def journey_track(seed: int) -> JourneyTrack:
+    gps = corpus_gps(seed)
+    j, params, frames, t_fix = gps.journey, gps.params, gps.frames, gps.journey.fix_timestamps_s
+    xy_m = gps.origin.to_local(frames.lat_deg, frames.lon_deg, None)[:, :2]
     _, largest = rotation_covered(j.T_world_cam[frames.kept])
     return JourneyTrack(f"c{seed:04d}", params["half"], largest, xy_m, frames.timestamp_s,
                         white_noise_m(t_fix, j.lat_deg, j.lon_deg))
