@@ -129,7 +129,10 @@ def test_operator_session(browser, server):
     answer = httpx.get(f"{base}/api/v1/signs", headers=auth(ADMIN_KEY),
                        params={"bbox": "8.41,49.0,8.43,49.02"}).json()
     assert len(answer["features"]) >= 1
-    assert page.locator(".sign-marker").count() == len(answer["features"])
+    # Each sign counted once, also one drawn by two tiles at their shared edge.
+    n = len(answer["features"])
+    assert page.locator("#map-status").inner_text().startswith(f"{n} signs in view")
+    assert n <= page.locator(".sign-marker").count() <= 4 * n
     page.locator(".sign-marker").first.click(force=True)
     page.wait_for_selector(".leaflet-popup-content")
     assert page.locator(".leaflet-popup-content td").first.inner_text().startswith(
@@ -145,12 +148,13 @@ def test_operator_session(browser, server):
         page.wait_for_timeout(300)
     page.wait_for_function("document.getElementById('map-status').textContent.includes('cluster')",
                            timeout=10_000)
-    # A loaded machine (CI, 2026-11-27) still showed 3 clusters from an intermediate zoom here:
-    # wait for the last zoom's tiles to be drawn rather than for a fixed time.
-    page.wait_for_function("document.querySelectorAll('.sign-cluster').length === 1",
-                           timeout=10_000)
+    # A loaded machine (on CI) still showed 3 clusters from an intermediate zoom here: wait for
+    # the last zoom's tiles to be drawn rather than for a fixed time. A cluster at a tile edge is
+    # drawn by both tiles: the status counts it once.
+    page.wait_for_function("document.getElementById('map-status').textContent"
+                           " === '0 signs in view and 1 cluster (zoom in)'", timeout=10_000)
     assert page.locator(".sign-marker").count() == 0
-    assert page.locator(".sign-cluster").count() == 1
+    assert 1 <= page.locator(".sign-cluster").count() <= 4
     shot(page, "map-clustered")
     assert errors == []
 

@@ -38,16 +38,27 @@
     return token;
   }
 
+  // A circle near a tile's edge is drawn by each tile it reaches into, so counts go by feature.
+  function featureToken(p) {
+    return "feature-" + String(p.id).replace(/[^A-Za-z0-9_-]/g, "_");
+  }
+  function distinct(selector) {
+    return new Set([...el.querySelectorAll(selector)].map(
+      (node) => [...node.classList].find((c) => c.startsWith("feature-")))).size;
+  }
+
   // The radii, strokes included, stay within what a tile reaches out for (SIGN_RADIUS_PX and
   // CLUSTER_RADIUS_PX of app/service/db/map_tiles.py), and the legend (map.html) draws these.
   function style(p) {
     if (p.count > 1) {
       return {radius: Math.min(22, 7 + 2.5 * Math.log2(p.count)), fill: true, fillOpacity: 0.75,
-              fillColor: "#555", color: "#fff", weight: 2, className: "sign-cluster"};
+              fillColor: "#555", color: "#fff", weight: 2,
+              className: `sign-cluster ${featureToken(p)}`};
     }
     return {radius: 7, fill: true, fillOpacity: 0.9, fillColor: Signmap.classColor(p.class),
             color: "#222", weight: 1,
-            className: `sign-marker state-${p.state || "journey"} ${classToken(p.class)}`};
+            className: `sign-marker state-${p.state || "journey"} ${classToken(p.class)} ` +
+                 featureToken(p)};
   }
 
   function showClassesInView() {
@@ -87,8 +98,8 @@
   });
   signs.on("loading", () => { status.textContent = "loading…"; });
   signs.on("load", () => {
-    const n = el.querySelectorAll(".sign-marker").length;
-    const clusters = el.querySelectorAll(".sign-cluster").length;
+    const n = distinct(".sign-marker");
+    const clusters = distinct(".sign-cluster");
     status.textContent = `${n} signs in view` + (clusters ? ` and ${clusters} cluster${clusters > 1 ? "s" : ""} (zoom in)` : "");
     showClassesInView();
   });
