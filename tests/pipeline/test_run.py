@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import re
+import sys
+import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +47,22 @@ class TurnRun:
     truth: dict
     result: JourneyResult
     stages: list[tuple[str, float]]  # (stage, fraction done) as progress reported them
+    stderr: str  # what reached file descriptor 2 during the run, COLMAP's child included
+
+
+@contextmanager
+def _fd2_into(file):
+    """Send file descriptor 2 (what COLMAP's glog writes to, from the spawned child too) to
+    ``file`` while the block runs."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    os.dup2(file.fileno(), 2)
+    try:
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 @pytest.fixture(scope="module")
@@ -52,9 +73,21 @@ def turn_run(turn_journey_bundle, tmp_path_factory) -> TurnRun:
     tmp = tmp_path_factory.mktemp("turn-run")
     journey = read_bundle(bundle, tmp / "bundle")
     stages: list[tuple[str, float]] = []
-    result = process_journey(journey, PipelineConfig(), tmp / "work",
-                             progress=lambda s, f, m="": stages.append((s, f)))
-    return TurnRun(journey, truth, result, stages)
+    with tempfile.TemporaryFile() as err:
+        with _fd2_into(err):
+            result = process_journey(journey, PipelineConfig(), tmp / "work",
+                                     progress=lambda s, f, m="": stages.append((s, f)))
+        err.seek(0)
+        stderr = err.read().decode(errors="replace")
+    return TurnRun(journey, truth, result, stages, stderr)
+
+
+def test_colmap_keeps_quiet_unless_verbose(turn_run):
+    # The stage-2 probe's bundle adjustment (pycolmap.bundle_adjustment) once switched glog back
+    # on inside the quiet child; `signmap process --verbose` is the way to see COLMAP's log
+    # (tests/project/test_cli_output.py).
+    glog_lines = re.findall(r"^[IWEF]20\d{6} .*$", turn_run.stderr, re.MULTILINE)
+    assert glog_lines == []
 
 
 def test_turn_journey_calibrates_and_maps_signs(turn_run):
