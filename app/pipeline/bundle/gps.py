@@ -89,6 +89,19 @@ class GpsFixes:
     accuracy_m: np.ndarray | None = None  # (M,) stated 68 % horizontal radius, NaN where none
 
 
+@dataclass(frozen=True)
+class GpsLog:
+    """A GPS log with absolute times (NMEA, GPX, a video's own track), before it meets frames.
+
+    ``fixes.timestamp_s`` counts from ``t0_utc`` (aware, UTC). ``notes`` are report lines on what
+    was read and skipped ("3 lines with a bad checksum skipped")."""
+
+    fixes: GpsFixes
+    t0_utc: datetime
+    source: str  # the file or track it came from, for messages ("gps.nmea", "GoPro GPMF")
+    notes: tuple[str, ...] = ()
+
+
 class NumberedLabels(Sequence[str]):
     """``prefix`` + number, made when a message needs one (not a string kept per fix)."""
 
