@@ -23,7 +23,7 @@ import pytest
 from tests.utils.backends import (REDIS_URL, SESSION_TAG, backend_unavailable, forget_queues,
                                   pg_database)
 from tests.utils.extended import register_extended_left_out
-from tests.utils.journeys import synthetic_journey
+from tests.utils.journeys import synthetic_journey, video_journey
 from tests.utils.real_services import register_real_service_skips
 from tests.utils.stack import Stack, make_settings, sqlite_stack
 
@@ -122,6 +122,19 @@ def stack(request, tmp_path) -> Stack:
 def turn_journey_bundle(tmp_path_factory) -> tuple[Path, dict]:
     """A small rendered journey with one turn: (bundle.zip, truth.json as a dict)."""
     return synthetic_journey(tmp_path_factory, "turn", turns=1)
+
+
+# The camera's clock of the video journeys: this far ahead of GPS time, and not declared. Whole
+# seconds, because an MP4's creation_time holds whole seconds (3.4 s would be written as 3).
+VIDEO_CLOCK_ERROR_S = 3.0
+
+
+@pytest.fixture(scope="session")
+def turn_video_bundle(tmp_path_factory, turn_journey_bundle) -> Path:
+    """The turn journey as a dash cam uploads it: video.mp4 (H.264) and a 10 Hz NMEA log, the
+    camera's clock VIDEO_CLOCK_ERROR_S ahead of GPS time (undeclared), detections by frame index."""
+    return video_journey(tmp_path_factory, turn_journey_bundle[0], "turn-video", gps_format="nmea",
+                         gps_rate_hz=10.0, clock_error_s=VIDEO_CLOCK_ERROR_S)
 
 
 @pytest.fixture(scope="session")

@@ -27,15 +27,38 @@ CALIBRATION_FILE = ("a JSON object with fx, fy, cx, cy (the camera's focal lengt
                     "{\"fx\": 1000, \"fy\": 1000, \"cx\": 960, \"cy\": 540, \"k1\": -0.1, "
                     "\"k2\": 0.01}")
 
-COMMANDS = {"process": "find the signs of one journey on this machine (no server needed)"}
+COMMANDS = {"process": "find the signs of one journey on this machine (no server needed)",
+            "pack": "make an upload bundle of a dash cam video and its GPS log"}
+
+PACK_DESCRIPTION = ("Makes the upload bundle (docs/journey-format.md, section 1a) of a dash cam "
+                    "recording: the video, its GPS log (NMEA, GPX or gps.csv; none when the "
+                    "video carries GoPro GPMF or CAMM) and optional sign detections. The bundle is "
+                    "checked as the service checks an upload.")
+
+
+def _video_options(p, *, camera_id_default: str) -> None:
+    p.add_argument("--gps", default=None, metavar="LOG",
+                   help="the GPS log of a video: .nmea (or .nma/.log/.txt: NMEA RMC+GGA), .gpx, "
+                   "or .csv (timestamp_s from the video's first frame); not needed when the video "
+                   "carries its own GPS (GoPro GPMF, CAMM)")
+    p.add_argument("--detections", default=None, metavar="CSV",
+                   help="sign detections of a video, detections.csv with `frame` the decoded "
+                   "frame's 0-based index as six digits")
+    p.add_argument("--camera-id", default=camera_id_default,
+                   help="the physical camera (journeys of one camera share its calibration; "
+                   "default: %(default)s)")
+    p.add_argument("--gps-time-offset", type=float, default=None, metavar="SECONDS",
+                   help="seconds to add to the video's clock to get GPS time, when known "
+                   "(default: estimated from the journey)")
 
 
 def add_parsers(sub) -> None:
     """``signmap process``."""
     p = sub.add_parser("process", description=DESCRIPTION, epilog=EXIT_CODES_HELP,
                        help=COMMANDS["process"], formatter_class=HelpFormatter)
-    p.add_argument("bundle", help="the journey: a .zip of frames, GPS and sign detections as "
-                   "described in docs/journey-format.md")
+    p.add_argument("bundle", help="the journey: a .zip of frames or a video, GPS and sign "
+                   "detections as described in docs/journey-format.md, or a dash cam video "
+                   "(.mp4, .mov, .mkv) with --gps")
     p.add_argument("--out", default="signs.geojson",
                    help="where to write the signs as GeoJSON (default: %(default)s)")
     p.add_argument("--report", default=None,
@@ -49,7 +72,16 @@ def add_parsers(sub) -> None:
                    help="keep the intermediate files (extracted frames, reconstructions) in this "
                    "directory (default: a temporary one, deleted at the end)")
     p.add_argument("--verbose", action="store_true", help="also show COLMAP's own log")
+    _video_options(p, camera_id_default="dashcam")
     p.set_defaults(func=run_process)
+
+    p = sub.add_parser("pack", description=PACK_DESCRIPTION, epilog=EXIT_CODES_HELP,
+                       help=COMMANDS["pack"], formatter_class=HelpFormatter)
+    p.add_argument("video", help="the recording: .mp4, .mov or .mkv")
+    p.add_argument("--out", default="journey.zip", help="the bundle to write (default: %(default)s)")
+    p.add_argument("--vehicle-id", default=None, help="the vehicle, when known")
+    _video_options(p, camera_id_default="dashcam")
+    p.set_defaults(func=run_pack)
 
 
 class BadInput(Exception):
@@ -89,6 +121,44 @@ def read_calibration(path: str) -> dict[str, float]:
     return params
 
 
+def _pack(args, out: Path) -> Path:
+    """``args.video`` (or a video given as ``process``'s bundle) packed into ``out``."""
+    from app.commands.pack import PackError, pack_video
+
+    video = _input_file(getattr(args, "video", None) or args.bundle, "video")
+    gps = _input_file(args.gps, "GPS log") if args.gps else None
+    detections = _input_file(args.detections, "detections file") if args.detections else None
+    try:
+        return pack_video(video, out, gps=gps, detections=detections, camera_id=args.camera_id,
+                          vehicle_id=getattr(args, "vehicle_id", None),
+                          gps_time_offset_s=args.gps_time_offset)
+    except PackError as exc:
+        raise BadInput(str(exc)) from None
+
+
+def run_pack(args) -> int:
+    """Pack ``args.video`` and check the bundle as an upload is checked."""
+    from app.pipeline.bundle import check_bundle
+    from app.pipeline.types import BundleError
+    from app.settings import Settings
+
+    out = Path(args.out)
+    try:
+        _pack(args, out)
+        check = check_bundle(out, Settings().bundle)
+    except BadInput as exc:
+        print(f"signmap pack: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BundleError as exc:
+        out.unlink(missing_ok=True)
+        print(f"signmap pack: the files do not make a valid journey: {exc.reason}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print(f"wrote {out}: {check.n_frames} frames, {check.n_detections} detections"
+          + "".join(f"\nwarning: {w}" for w in check.warnings))
+    return EXIT_OK
+
+
 def run_process(args) -> int:
     """Run the pipeline on ``args.bundle``; returns one of the exit codes above."""
     from app import logs
@@ -100,16 +170,22 @@ def run_process(args) -> int:
     from app.settings import Settings
 
     logs.configure(logging.INFO if args.verbose else logging.WARNING)
-    try:
-        bundle = _input_file(args.bundle, "bundle")
-        params = read_calibration(args.calibration) if args.calibration else None
-    except BadInput as exc:
-        print(f"signmap process: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    from app.commands.pack import is_video
+
     settings = Settings()
     out = Path(args.out)
     with tempfile.TemporaryDirectory(prefix="signmap-") as tmp:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)
+        try:
+            bundle = _input_file(args.bundle, "bundle")
+            params = read_calibration(args.calibration) if args.calibration else None
+            if is_video(bundle):
+                bundle = _pack(args, workdir / "journey.zip")
+            elif args.gps or args.detections:
+                raise BadInput("--gps and --detections go with a video; a bundle holds its own")
+        except BadInput as exc:
+            print(f"signmap process: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
         try:
             journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle)
         except BundleError as exc:

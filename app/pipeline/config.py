@@ -241,4 +241,11 @@ class BundleLimits(BaseModel):
     max_detections: int = Field(300_000, description="rows of detections.csv")
     max_boxes_per_frame: int = Field(200, description="detection boxes in one frame")
     max_gps_rows: int = Field(
-        1_000_000, description="rows of gps.csv (or track points of gps.gpx)")
+        1_000_000, description="rows of gps.csv, track points of gps.gpx, lines of gps.nmea or "
+        "fixes of a video's own GPS track")
+    # A video journey (contract 1a): dash cams cut recordings into clips of 1-10 minutes; an hour
+    # at 60 fps bounds the worker's decoding time (its memory holds a frame or two at any length).
+    max_video_bytes: int = Field(4 * 2**30, description="bytes of the video file in a bundle")
+    max_video_s: float = Field(3600.0, description="seconds of video in one journey")
+    max_video_frames: int = Field(
+        3600 * 60, description="frames of video in one journey (as the container declares)")

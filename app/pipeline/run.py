@@ -160,7 +160,7 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                               journey.alt_m if journey.has_altitude else None)
     # Turn finding keeps the straight-line positions it was tuned on; alignment takes the spline's.
     xyz_align = frame_positions(journey, origin, xyz_gps) if config.gps_smoothing else xyz_gps
-    journal = _Journal()
+    journal = _Journal(list(journey.intake))
     the_plan, clock = _plan_stage(journey, xyz_gps, config, known_camera, journal, progress)
     job = _Job(journey, config, workdir, verbose, journal, clock)
     ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,

@@ -129,6 +129,9 @@ class Journey:
     gps_accuracy_m: float | None = None
     # The fixes themselves (None: one EXIF fix per frame, which lat_deg etc. already are).
     gps_fixes: GpsTrack | None = None
+    # What reading the bundle did that the journey's report should show first (a video's frame
+    # choice and clock offset), as the stages' own reports.
+    intake: tuple["StageReport", ...] = ()
 
     @property
     def has_altitude(self) -> bool:

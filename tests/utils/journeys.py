@@ -33,6 +33,22 @@ def synthetic_journey(tmp_path_factory, name: str, **config) -> tuple[Path, dict
     return out / "bundle.zip", json.loads((out / "truth.json").read_text())
 
 
+def video_journey(tmp_path_factory, frames_bundle: Path, name: str, **options) -> Path:
+    """``frames_bundle`` as a dash cam's video bundle (``app.synth.video.bundle.video_bundle``
+    with ``options``), made once per session (the frames bundle's cache directory holds it)."""
+    import hashlib
+
+    from app.synth.video.bundle import video_bundle
+
+    digest = hashlib.sha256(repr(sorted(options.items())).encode()).hexdigest()[:12]
+    out = frames_bundle.parent / f"{name}-{digest}.zip"
+    with open(frames_bundle.parent / f"{name}-{digest}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not out.exists():
+            video_bundle(frames_bundle, out.with_suffix(".part"), **options).replace(out)
+    return out
+
+
 def first_frames(bundle: Path, n_frames: int, out: Path) -> Path:
     """``bundle`` (a rendered journey) cut to its first ``n_frames`` frames: their images, GPS
     rows and detections, and the frame-less fix rows up to the first one after the last frame

@@ -31,10 +31,14 @@ Sources, by precedence: ``gps.csv``, else ``gps.gpx``, else EXIF tags of JPEG fr
   the end value within the same bound outside their span (GPS altitude is too noisy to extrapolate a
   slope from), and NaN beyond.
 
-``gps.gpx`` (every ``<trkpt lat lon>`` with a ``<time>``, optional ``<ele>``, in document order):
-when there are exactly as many track points as frames, point i is frame i; otherwise the frames are
-spread uniformly in time over the track's first..last point (so no frame lies outside it).
-Timestamps are seconds since the first track point; a time without an offset is taken as UTC.
+``gps.gpx`` (every ``<trkpt lat lon>`` with a ``<time>``, optional ``<ele>``, in document order;
+a time without an offset is taken as UTC): when there are exactly as many track points as frames,
+point i is frame i (a pairing: the frames' own times are not needed). Otherwise frames are placed
+on the track by time, never spread over it: each frame's UTC time (``frame_utc_s``, worked out by
+``gps_exif.frame_times_utc_s`` from the manifest's ``captured_at`` + i / ``frame_rate_hz``, or the
+frames' EXIF DateTimeOriginal; ``gps_time_offset_s`` added) is interpolated on the track like a
+``gps.csv`` frame on its fixes (same extrapolation bound, ends dropped the same way). A bundle
+whose frames have no time is refused. Timestamps are seconds since the first track point.
 
 Plausibility: positions may not move more than ``MAX_JUMP_M`` faster than ``MAX_SPEED_MPS`` between
 consecutive fixes or consecutive frames (a car cannot; GPS noise does not jump that far).
@@ -47,7 +51,7 @@ import math
 import xml.etree.ElementTree as ET
 from array import array
 from dataclasses import dataclass, field, replace
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from typing import BinaryIO, Sequence
 
 import numpy as np
@@ -353,9 +357,9 @@ def _local(tag: str) -> str:
     return tag.rsplit("}", 1)[-1]
 
 
-def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> GpsFixes:
-    """Track points of a GPX 1.0/1.1 document (bytes, or a binary stream parsed as it is read);
-    ``timestamp_s`` relative to the first point. Each point is dropped from the tree once read, so
+def read_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> GpsLog:
+    """Track points of a GPX 1.0/1.1 document (bytes, or a binary stream parsed as it is read),
+    timed from the first point (``t0_utc``). Each point is dropped from the tree once read, so
     memory holds the point's numbers only; more than ``max_points`` is a BundleError."""
     t_s, lats, lons, alts = array("d"), array("d"), array("d"), array("d")
     t0, open_elements = None, []
@@ -397,18 +401,55 @@ def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> Gps
         raise BundleError(f"gps.gpx is not valid XML: {exc}") from None
     if not t_s:
         raise BundleError("gps.gpx has no track points (<trkpt lat=.. lon=..><time>..</time>)")
-    return GpsFixes(*(np.frombuffer(a, np.float64) for a in (t_s, lats, lons, alts)),
-                    NumberedLabels("track point", np.arange(1, len(t_s) + 1)))
+    fixes = GpsFixes(*(np.frombuffer(a, np.float64) for a in (t_s, lats, lons, alts)),
+                     NumberedLabels("track point", np.arange(1, len(t_s) + 1)))
+    return GpsLog(fixes, t0.astimezone(timezone.utc), "gps.gpx")
 
 
-def gps_from_gpx(source: bytes | BinaryIO, frame_ids: Sequence[str], *,
+def parse_gpx(source: bytes | BinaryIO, *, max_points: int | None = None) -> GpsFixes:
+    """``read_gpx``'s fixes (``timestamp_s`` relative to the first point)."""
+    return read_gpx(source, max_points=max_points).fixes
+
+
+def gps_from_gpx(source: bytes | BinaryIO | GpsLog, frame_ids: Sequence[str], *,
+                 frame_utc_s: np.ndarray | None = None,
                  max_points: int | None = None) -> FrameGps:
-    """``gps.gpx`` (bytes or a binary stream) -> per-frame GPS (see the module docstring for how
-    frames get times)."""
-    fixes = parse_gpx(source, max_points=max_points)
-    t_fix = fixes.timestamp_s
-    if len(t_fix) == len(frame_ids):
-        frame_timestamp_s = t_fix.copy()
-    else:
-        frame_timestamp_s = np.linspace(t_fix[0], t_fix[-1], len(frame_ids))
+    """``gps.gpx`` (bytes, a binary stream, or its ``read_gpx`` log) -> per-frame GPS.
+
+    One track point per frame pairs them; otherwise ``frame_utc_s`` (N,) gives each frame's time
+    on the GPS clock, UTC POSIX seconds, and frames are placed on the track by it (module
+    docstring). Without it the frames cannot be placed: a BundleError."""
+    log = source if isinstance(source, GpsLog) else read_gpx(source, max_points=max_points)
+    fixes = log.fixes
+    if len(fixes.timestamp_s) == len(frame_ids):
+        return _fixes_to_frames(fixes, fixes.timestamp_s.copy(), frame_ids)
+    if frame_utc_s is None:
+        raise BundleError(
+            f"{log.source} has {len(fixes.timestamp_s)} track points for {len(frame_ids)} "
+            "frames, so point i cannot be frame i, and the frames have no times to place them on "
+            "the track by: give captured_at and frame_rate_hz in manifest.json, or JPEG frames with "
+            "EXIF DateTimeOriginal")
+    frame_timestamp_s = np.asarray(frame_utc_s, float) - log.t0_utc.timestamp()
+    if not np.all(np.abs(frame_timestamp_s) <= MAX_TIMESTAMP_S):  # NaN fails too
+        raise BundleError(f"frame times lie more than {MAX_TIMESTAMP_S:g} s from {log.source}'s "
+                          "first track point; check captured_at and frame_rate_hz")
+    check_frame_times(frame_timestamp_s, frame_ids, strict=True)
+    _check_time_overlap(log, frame_timestamp_s)
     return _fixes_to_frames(fixes, frame_timestamp_s, frame_ids)
+
+
+def _utc_text(log: GpsLog, t_s: float) -> str:
+    return (log.t0_utc + timedelta(seconds=float(t_s))).isoformat(timespec="milliseconds")
+
+
+def _check_time_overlap(log: GpsLog, frame_timestamp_s: np.ndarray) -> None:
+    """Frames that miss the track altogether mostly mean a wrong clock: say so in UTC."""
+    t_fix = log.fixes.timestamp_s
+    bound_s = extrapolation_bound_s(t_fix)
+    if frame_timestamp_s[-1] < t_fix[0] - bound_s or frame_timestamp_s[0] > t_fix[-1] + bound_s:
+        raise BundleError(
+            f"the frames do not lie on the GPS track in time: {log.source} runs from "
+            f"{_utc_text(log, t_fix[0])} to {_utc_text(log, t_fix[-1])}, the frames from "
+            f"{_utc_text(log, frame_timestamp_s[0])} to {_utc_text(log, frame_timestamp_s[-1])} "
+            "(UTC); check captured_at (UTC unless it gives an offset), the frames' EXIF times "
+            "and gps_time_offset_s")

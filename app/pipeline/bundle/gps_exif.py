@@ -7,6 +7,14 @@ without an offset taken as UTC), else GPSTimeStamp alone (seconds of the day; a 
 midnight UTC then fails the order check). Timestamps are seconds since the first frame. Cameras often
 stamp whole seconds only, so frames may share a timestamp (but not go back in time); each frame's
 position is its own fix, nothing is interpolated.
+
+Frame times for a GPS track that is not one fix per frame (``frame_times_utc_s``, for ``gps.gpx``):
+each frame's UTC time, by precedence from the manifest's ``captured_at`` + i / ``frame_rate_hz``
+(both needed), else every frame's DateTimeOriginal (+ SubSecTimeOriginal): with
+OffsetTimeOriginal an absolute time; without, the camera's local time, whose spacing only is used,
+anchored at ``captured_at`` (a time zone cannot be guessed: without ``captured_at`` the bundle is
+refused). ``captured_at`` without an offset is UTC. The manifest's ``gps_time_offset_s`` (camera
+time to GPS time) is added to all of them.
 """
 
 from __future__ import annotations
@@ -21,7 +29,8 @@ import numpy as np
 from PIL import ExifTags, Image
 
 from app.pipeline.bundle.gps import (MAX_TIMESTAMP_S, FrameGps, check_altitude,
-                                     check_frame_times, check_plausible_motion, check_position)
+                                     check_frame_times, check_plausible_motion, check_position,
+                                     parse_iso_time)
 from app.pipeline.types import BundleError
 
 NO_GPS_MESSAGE = "bundle has no GPS: add gps.csv, gps.gpx, or EXIF GPS tags to every JPEG frame"
@@ -51,6 +60,8 @@ def _seconds_of_day(hms) -> float:
 
 
 def _original_time(exif_ifd: dict) -> datetime | None:
+    """DateTimeOriginal (+ sub-seconds): aware when OffsetTimeOriginal says the zone, else naive
+    (the camera's local time)."""
     text = exif_ifd.get(ExifTags.Base.DateTimeOriginal)
     if not text:
         return None
@@ -59,14 +70,31 @@ def _original_time(exif_ifd: dict) -> datetime | None:
     except ValueError:
         return None
     subsec = str(exif_ifd.get(ExifTags.Base.SubsecTimeOriginal, "")).strip("\x00 ")
-    if subsec.isdigit():
+    if subsec.isascii() and subsec.isdigit():  # "²" is a digit to isdigit, not to float
         value = value.replace(microsecond=int(float("0." + subsec) * 1e6))
     offset = str(exif_ifd.get(ExifTags.Base.OffsetTimeOriginal, "")).strip("\x00 ")
     try:
-        tz = datetime.strptime(offset, "%z").tzinfo if offset else timezone.utc
+        tz = datetime.strptime(offset, "%z").tzinfo if offset else None
     except ValueError:
-        tz = timezone.utc
+        tz = None
     return value.replace(tzinfo=tz)
+
+
+def _exif_ifd(image_bytes: bytes) -> dict | None:
+    with Image.open(io.BytesIO(image_bytes)) as img:
+        if img.format != "JPEG":
+            return None
+        return dict(img.getexif().get_ifd(ExifTags.IFD.Exif))
+
+
+def read_exif_time(image_bytes: bytes) -> datetime | None:
+    """A JPEG's DateTimeOriginal (aware with OffsetTimeOriginal, naive without), None when it is
+    not a JPEG or has none."""
+    try:
+        exif_ifd = _exif_ifd(image_bytes)
+    except Exception:  # whatever Pillow raises on a mangled file: no time to read
+        return None
+    return None if exif_ifd is None else _original_time(exif_ifd)
 
 
 def read_exif_fix(image_bytes: bytes) -> ExifFix | None:
@@ -106,8 +134,11 @@ def read_exif_fix(image_bytes: bytes) -> ExifFix | None:
             gps_utc = None
     if not (math.isfinite(lat) and math.isfinite(lon)):
         return None
-    return ExifFix(lat, lon, alt if math.isfinite(alt) else math.nan, gps_utc,
-                   _original_time(exif_ifd), time_of_day)
+    original = _original_time(exif_ifd)
+    if original is not None and original.tzinfo is None:
+        original = original.replace(tzinfo=timezone.utc)  # one clock: only differences count
+    return ExifFix(lat, lon, alt if math.isfinite(alt) else math.nan, gps_utc, original,
+                   time_of_day)
 
 
 def gps_from_exif(fixes: Sequence[ExifFix | None], frame_ids: Sequence[str]) -> FrameGps:
@@ -144,3 +175,58 @@ def gps_from_exif(fixes: Sequence[ExifFix | None], frame_ids: Sequence[str]) -> 
     check_plausible_motion(gps.timestamp_s, gps.lat_deg, gps.lon_deg,
                            [f"frame {f}" for f in frame_ids])
     return gps
+
+
+def frame_times_utc_s(frame_ids: Sequence[str], *, captured_at: str | None,
+                      frame_rate_hz: float | None, exif_times: Sequence[datetime | None] | None,
+                      gps_time_offset_s: float | None = None) -> np.ndarray:
+    """Each frame's time on the GPS clock (N,), UTC POSIX seconds (module docstring for the
+    rules). ``exif_times``: each frame's ``read_exif_time``, None when the frames are no JPEGs."""
+    start = parse_iso_time(captured_at, "manifest.json captured_at") if captured_at else None
+    if frame_rate_hz is not None:
+        if start is None:
+            raise BundleError("manifest.json gives frame_rate_hz but no captured_at: frame i is "
+                              "taken at captured_at + i / frame_rate_hz, so both are needed")
+        utc_s = start.timestamp() + np.arange(len(frame_ids)) / frame_rate_hz
+    else:
+        utc_s = _exif_utc_s(frame_ids, start, exif_times)
+    return utc_s + (gps_time_offset_s or 0.0)
+
+
+def _exif_utc_s(frame_ids: Sequence[str], start: datetime | None,
+                exif_times: Sequence[datetime | None] | None) -> np.ndarray:
+    missing = None if exif_times is None else next(
+        (i for i, t in enumerate(exif_times) if t is None), None)
+    if exif_times is None or missing is not None:
+        which = ("these frames are not all JPEGs" if exif_times is None
+                 else f"frame {frame_ids[missing]} has none")
+        raise BundleError(
+            "the frames have no times: give captured_at and frame_rate_hz in manifest.json "
+            "(frame i taken at captured_at + i / frame_rate_hz), or JPEG frames with EXIF "
+            f"DateTimeOriginal ({which})")
+    zoned = [t.tzinfo is not None for t in exif_times]
+    if all(zoned):
+        utc_s = np.array([t.timestamp() for t in exif_times])
+    elif any(zoned):
+        i = zoned.index(not zoned[0])
+        raise BundleError(f"frame {frame_ids[0]}'s EXIF time {'has' if zoned[0] else 'lacks'} "
+                          f"a time zone (OffsetTimeOriginal) and frame {frame_ids[i]}'s "
+                          f"{'lacks' if zoned[0] else 'has'} one; every frame needs the same kind")
+    elif start is None:
+        raise BundleError(
+            "the frames' EXIF DateTimeOriginal has no time zone (OffsetTimeOriginal), so it is "
+            "the camera's local time: give captured_at in manifest.json (the first frame's time, "
+            "UTC unless it gives an offset) to anchor it, or frame_rate_hz with captured_at")
+    else:
+        # Local time: its spacing is right, its zone unknown; captured_at fixes the first frame.
+        utc_s = start.timestamp() + np.array(
+            [(t - exif_times[0]).total_seconds() for t in exif_times])
+    same = np.flatnonzero(np.diff(utc_s) <= 0)
+    if same.size:
+        i = int(same[0])
+        raise BundleError(
+            f"frames {frame_ids[i]} and {frame_ids[i + 1]} have EXIF times "
+            f"{exif_times[i].isoformat()} and {exif_times[i + 1].isoformat()}: frame times must "
+            "increase (whole seconds need SubSecTimeOriginal); give captured_at and frame_rate_hz "
+            "in manifest.json instead")
+    return utc_s

@@ -1,6 +1,11 @@
 """``manifest.json`` of a journey bundle (contract section 1). Unknown keys are ignored; values are
 checked strictly (a number must be a JSON number, not a string), so a mistake is reported rather
-than guessed around."""
+than guessed around.
+
+Two optional fields besides the contract's section 1: ``gps_time_offset_s`` (section 1a: seconds
+to add to the camera's time to get GPS time) and ``frame_rate_hz`` (this project's extension:
+frame i was taken at ``captured_at`` + i / ``frame_rate_hz``; it lets frames be placed on a
+``gps.gpx`` track that has not one point per frame)."""
 
 from __future__ import annotations
 
@@ -13,6 +18,8 @@ from app.pipeline.bundle.gps import parse_iso_time
 from app.pipeline.types import BundleError, CameraModel
 
 FORMAT = "signmap-journey/1"
+MAX_FRAME_RATE_HZ = 1000.0  # beyond any camera's frame rate; a larger value is a unit mistake
+MAX_GPS_TIME_OFFSET_S = 1e6  # 11 days: more is no clock error but a wrong date
 # Bounds of a camera prior that any real camera keeps (pixels; radial coefficients): a hint beyond
 # them is no camera, and a value such as 1e308 would turn the self-calibration into NaN.
 MAX_PRIOR_PX = 1e6
@@ -43,6 +50,9 @@ class Manifest(BaseModel):
     vehicle_id: str | None = Field(None, max_length=MAX_TEXT_CHARS)
     captured_at: str | None = Field(None, max_length=64)
     camera_prior: CameraPrior | None = None
+    frame_rate_hz: float | None = Field(None, gt=0, le=MAX_FRAME_RATE_HZ, allow_inf_nan=False)
+    gps_time_offset_s: float | None = Field(None, ge=-MAX_GPS_TIME_OFFSET_S,
+                                            le=MAX_GPS_TIME_OFFSET_S, allow_inf_nan=False)
 
     @field_validator("camera_id", "vehicle_id", "captured_at")
     @classmethod

@@ -14,7 +14,9 @@ Frames are ``frames/<stem>.jpg|.jpeg|.png`` (extensions are case-sensitive like 
 bundle; other files under ``frames/``, hidden ones such as macOS ``._000000.png`` and sub-folders
 are ignored), ordered by stem. Every frame's header must be a JPEG or PNG of the first frame's size
 (decoding uses raw pixel orientation: the EXIF orientation tag is ignored, as detections refer to
-the stored pixels). GPS comes from ``bundle.gps`` / ``bundle.gps_exif``; detections from
+the stored pixels). GPS comes from ``bundle.gps`` / ``bundle.gps_exif``; frames on a ``gps.gpx``
+track that is not one point per frame are placed by their times (``captured_at`` +
+``frame_rate_hz``, else their EXIF times, read with the frames); detections from
 ``bundle.detections``, with empty track ids filled by ``bundle.associate``.
 
 Frames lying too far outside the GPS fixes' time span are dropped from the journey's ends
@@ -28,7 +30,7 @@ import io
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Callable
 
 import cv2
 import numpy as np
@@ -37,8 +39,9 @@ from PIL import Image, JpegImagePlugin, PngImagePlugin
 from app.pipeline.bundle.associate import assign_tracks, sort_detections
 from app.pipeline.bundle.csv_table import check_text, shown
 from app.pipeline.bundle.detections import DetectionTable, read_detections
-from app.pipeline.bundle.gps import FrameGps, gps_from_csv, gps_from_gpx
-from app.pipeline.bundle.gps_exif import gps_from_exif, read_exif_fix
+from app.pipeline.bundle.gps import FrameGps, GpsLog, gps_from_csv, gps_from_gpx, read_gpx
+from app.pipeline.bundle.gps_exif import (frame_times_utc_s, gps_from_exif, read_exif_fix,
+                                          read_exif_time)
 from app.pipeline.bundle.manifest import Manifest, parse_manifest
 from app.pipeline.bundle.zip import BundleLimits, BundleZip, open_bundle
 from app.pipeline.types import BundleError, Frame, GpsTrack, Journey
@@ -48,6 +51,7 @@ __all__ = ["BundleCheck", "BundleLimits", "check_bundle", "read_bundle"]
 log = logging.getLogger(__name__)
 
 FRAME_EXTENSIONS = ("jpg", "jpeg", "png")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv")
 MAX_MANIFEST_BYTES = 2**20
 _DECODE_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
 # Pillow's format classes are used directly: they parse the header only, and (unlike Image.open,
@@ -152,11 +156,13 @@ def _decoded_size(data: bytes, base: str) -> tuple[int, int]:
 
 
 def _read_frames(bz: BundleZip, entries: list[tuple[str, str]], size: tuple[int, int],
-                 frames_dir: Path | None, limits: BundleLimits, decode: bool, want_exif: bool):
-    """Check every frame, one in memory at a time; write it under ``frames_dir`` if given."""
+                 frames_dir: Path | None, limits: BundleLimits, decode: bool, want_exif: bool,
+                 want_times: bool = False):
+    """Check every frame, one in memory at a time; write it under ``frames_dir`` if given.
+    ``want_exif``/``want_times``: also collect each frame's EXIF fix / EXIF time."""
     if frames_dir is not None:
         frames_dir.mkdir(parents=True, exist_ok=True)
-    paths, exif_fixes = [], []
+    paths, exif_fixes, exif_times = [], [], []
     for _, name in entries:
         base = name.split("/", 1)[1]
         data = bz.read(name)
@@ -168,10 +174,35 @@ def _read_frames(bz: BundleZip, entries: list[tuple[str, str]], size: tuple[int,
                               "like the first frame; all frames must have one size")
         if want_exif:
             exif_fixes.append(read_exif_fix(data))
+        if want_times:
+            exif_times.append(read_exif_time(data))
         if frames_dir is not None:
             (frames_dir / base).write_bytes(data)
             paths.append(frames_dir / base)
-    return paths, exif_fixes
+    return paths, exif_fixes, exif_times
+
+
+def _gpx_wants_exif(log: GpsLog, manifest: Manifest, entries: list[tuple[str, str]]) -> bool:
+    """Whether the frames' EXIF times are needed to place them on the track (read with the
+    frames, so only when nothing else times them and they can carry EXIF)."""
+    return (len(log.fixes.timestamp_s) != len(entries) and manifest.frame_rate_hz is None
+            and all(name.rpartition(".")[2] in ("jpg", "jpeg") for _, name in entries))
+
+
+def _gpx_frames(log: GpsLog, manifest: Manifest, frame_ids: list[str],
+                exif_times: list | None) -> FrameGps:
+    """Frames on a ``gps.gpx`` track: point i is frame i when the counts match, else by time."""
+    frame_utc_s = None
+    if len(log.fixes.timestamp_s) != len(frame_ids):
+        try:
+            frame_utc_s = frame_times_utc_s(
+                frame_ids, captured_at=manifest.captured_at, frame_rate_hz=manifest.frame_rate_hz,
+                exif_times=exif_times, gps_time_offset_s=manifest.gps_time_offset_s)
+        except BundleError as exc:
+            raise BundleError(f"gps.gpx has {len(log.fixes.timestamp_s)} track points for "
+                              f"{len(frame_ids)} frames, so the frames are placed on it by "
+                              f"time, and {exc.reason}") from None
+    return gps_from_gpx(log, frame_ids, frame_utc_s=frame_utc_s)
 
 
 def _validate(bz: BundleZip, limits: BundleLimits, decode: bool,
@@ -193,22 +224,27 @@ def _validate(bz: BundleZip, limits: BundleLimits, decode: bool,
     frame_ids = [stem for stem, _ in entries]
     with bz.open(entries[0][1]) as fp:
         width, height = _header_size(fp, entries[0][1].split("/", 1)[1], limits)
-    gps = None
+    gps, gpx_log = None, None
     if "gps.csv" in bz.files:
         with bz.open("gps.csv") as fp:
             gps = gps_from_csv(fp, frame_ids, max_rows=limits.max_gps_rows)
     elif "gps.gpx" in bz.files:
         with bz.open("gps.gpx") as fp:
-            gps = gps_from_gpx(fp, frame_ids, max_points=limits.max_gps_rows)
+            gpx_log = read_gpx(fp, max_points=limits.max_gps_rows)
+        if not _gpx_wants_exif(gpx_log, manifest, entries):
+            gps = _gpx_frames(gpx_log, manifest, frame_ids, exif_times=None)
     detections = None
     if "detections.csv" in bz.files:
         with bz.open("detections.csv") as fp:
             detections = read_detections(fp, frame_ids, width, height,
                                          max_rows=limits.max_detections,
                                          max_boxes_per_frame=limits.max_boxes_per_frame)
-    paths, exif_fixes = _read_frames(bz, entries, (width, height), frames_dir, limits, decode,
-                                     want_exif=gps is None)
-    if gps is None:
+    paths, exif_fixes, exif_times = _read_frames(
+        bz, entries, (width, height), frames_dir, limits, decode,
+        want_exif=gps is None and gpx_log is None, want_times=gps is None and gpx_log is not None)
+    if gps is None and gpx_log is not None:
+        gps = _gpx_frames(gpx_log, manifest, frame_ids, exif_times)
+    elif gps is None:
         gps = gps_from_exif(exif_fixes, frame_ids)
     return _Valid(manifest, frame_ids, paths, width, height, gps, detections)
 
@@ -219,10 +255,42 @@ def _kept_mask(valid: _Valid) -> np.ndarray:
     return keep
 
 
+def _video_entry(bz: BundleZip) -> str | None:
+    """The bundle's video (contract 1a: one video file at its top level), None for frames."""
+    videos = [n for n in bz.files if "/" not in n and n.lower().endswith(VIDEO_SUFFIXES)]
+    if len(videos) > 1:
+        raise BundleError(f"bundle has {len(videos)} videos ({', '.join(sorted(videos)[:3])}); a "
+                          "journey is one video: upload each as its own bundle")
+    if videos and _frame_entries(list(bz.files)):
+        raise BundleError(f"bundle has both {videos[0]} and frames/; a journey is one or the "
+                          "other")
+    return videos[0] if videos else None
+
+
+def _manifest(bz: BundleZip) -> Manifest:
+    if "manifest.json" not in bz.files:
+        raise _manifest_error(list(bz.files))
+    bz.check_sizes({"manifest.json": MAX_MANIFEST_BYTES})
+    return parse_manifest(bz.read("manifest.json", MAX_MANIFEST_BYTES))
+
+
+def _check_video(bz: BundleZip, video: str, limits: BundleLimits) -> BundleCheck:
+    from app.pipeline.bundle.video.read import check_video  # PyAV: only for video bundles
+
+    m = _manifest(bz)
+    check = check_video(bz, m, video, limits)
+    n_detections = len(check.detections) if check.detections is not None else 0
+    return BundleCheck(m.camera_id, m.vehicle_id, m.captured_at, check.header.n_frames,
+                       n_detections, ())
+
+
 def check_bundle(zip_path: Path, limits: BundleLimits = BundleLimits(), *,
                  decode_images: bool = True) -> BundleCheck:
     """Validate the bundle at ``zip_path`` without writing anything or building tracks."""
     with open_bundle(Path(zip_path), limits) as bz:
+        video = _video_entry(bz)
+        if video is not None:
+            return _check_video(bz, video, limits)
         valid = _validate(bz, limits, decode_images, frames_dir=None)
     keep = _kept_mask(valid)
     n_detections = int(keep[valid.detections.frame].sum()) if valid.detections else 0
@@ -232,9 +300,19 @@ def check_bundle(zip_path: Path, limits: BundleLimits = BundleLimits(), *,
 
 
 def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = BundleLimits(),
-                decode_images: bool = True) -> Journey:
-    """Validate the bundle at ``zip_path``, extract its frames under ``extract_dir/frames/``."""
+                decode_images: bool = True,
+                progress: Callable[[float], None] | None = None) -> Journey:
+    """Validate the bundle at ``zip_path``, extract its frames under ``extract_dir/frames/`` (a
+    video's: decode it and keep the frames the pipeline needs, ``progress`` of the decoding)."""
     with open_bundle(Path(zip_path), limits) as bz:
+        video = _video_entry(bz)
+        if video is not None:
+            from app.pipeline.bundle.video.read import read_video
+
+            journey = read_video(bz, _manifest(bz), video, Path(extract_dir), limits, progress)
+            for warning in journey.warnings:
+                log.warning("%s: %s", Path(zip_path).name, warning)
+            return journey
         valid = _validate(bz, limits, decode_images, frames_dir=Path(extract_dir) / "frames")
     gps = valid.gps
     kept_ids, kept_paths = valid.frame_ids[gps.kept], valid.paths[gps.kept]

@@ -92,14 +92,17 @@ def test_gpx_with_one_point_per_frame(tmp_path):
     np.testing.assert_allclose(journey.alt_m, alt, atol=1e-9)
 
 
-def test_gpx_with_fewer_points_spreads_frames_uniformly(tmp_path):
-    # The track crosses midnight UTC; frame times count from its first point.
+def test_gpx_with_fewer_points_places_frames_by_time(tmp_path):
+    # The track crosses midnight UTC; frames are at captured_at + i / frame_rate_hz on it, and
+    # their times count from its first point.
     t0, t1, t2 = (datetime(2024, 5, 1, 23, 59, 59, tzinfo=timezone.utc),
                   datetime(2024, 5, 2, 0, 0, 0, tzinfo=timezone.utc),
                   datetime(2024, 5, 2, 0, 0, 1, tzinfo=timezone.utc))
     points = [(bf.LAT0, bf.LON0, None, t0), (bf.LAT0 + 2e-5, bf.LON0, None, t1),
               (bf.LAT0 + 6e-5, bf.LON0 + 4e-5, None, t2)]
-    files = {**bf.valid_files(), "gps.gpx": bf.gpx_bytes(points)}
+    files = {**bf.valid_files(), "gps.gpx": bf.gpx_bytes(points),
+             "manifest.json": bf.manifest_bytes(captured_at="2024-05-01T23:59:59Z",
+                                                frame_rate_hz=2.0)}
     del files["gps.csv"]
     journey = _read(tmp_path, files)
     np.testing.assert_allclose([f.timestamp_s for f in journey.frames], [0, .5, 1, 1.5, 2])

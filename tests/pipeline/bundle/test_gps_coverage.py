@@ -144,11 +144,15 @@ def test_at_least_ten_frames_must_remain_when_frames_are_dropped():
                                  _ids(3)).kept == slice(0, 3)
 
 
-def test_gpx_frames_spread_over_the_track_are_never_dropped():
+def test_gpx_frames_placed_by_time_past_the_track_are_dropped_like_csv():
+    # Fixes at 0, 1, 2 s (bound 1.5 s); frames every 0.2 s from 0 to 3.8 s: 3.6 and 3.8 go.
     points = [(bf.LAT0 + 1e-5 * k, bf.LON0, None, bf.CAPTURED_AT.replace(second=k))
               for k in range(3)]
-    gps = gps_from_gpx(bf.gpx_bytes(points), _ids(12))
-    assert gps.kept == slice(0, 12) and gps.warnings == ()
+    frame_utc_s = bf.CAPTURED_AT.timestamp() + 0.2 * np.arange(20)
+    gps = gps_from_gpx(bf.gpx_bytes(points), _ids(20), frame_utc_s=frame_utc_s)
+    assert gps.kept == slice(0, 18)
+    assert gps.warnings[0].startswith("dropped 2 frames 000018-000019 (up to 1.8 s after the last "
+                                      "GPS fix at 2.000 s")
 
 
 def test_cli_report_lists_the_bundle_warnings():
