@@ -289,6 +289,27 @@ def _add_pose_error_parser(bench_sub) -> None:
     g.set_defaults(func=run_pose_error_command)
 
 
+def run_video_command(args) -> int:
+    from bench.studies.video_decode import run_video_bench
+
+    md = run_video_bench(args.seconds, args.out)
+    print(md.read_text())
+    print(f"wrote {md}")
+    return 0
+
+
+def _add_video_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "video", help="a video journey's intake: decode and frame choice per minute of 1080p30",
+        description="Encodes a 1080p30 H.264 video of a panning texture, then times, each in its "
+        "own process, a plain decode (the baseline) and the worker's intake (decode, keep 10 Hz, "
+        "write JPEG, image motion for the clock offset); prints seconds per minute of video, "
+        "their ratio and peak memory.")
+    g.add_argument("--seconds", type=float, default=20.0,
+                   help="length of the video made (default: %(default)s)")
+    g.set_defaults(func=run_video_command)
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -423,6 +444,7 @@ def add_parsers(sub) -> None:
     _add_gps_draws_parser(bench_sub)
     _add_gps_focal_parser(bench_sub)
     _add_pose_error_parser(bench_sub)
+    _add_video_parser(bench_sub)
     _add_real_ego_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",

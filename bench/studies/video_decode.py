@@ -1,0 +1,102 @@
+"""``signmap bench video``: what a video journey's intake costs the worker, per minute of 1080p30.
+
+A moving texture (a camera panning across a rendered street texture, so H.264 compresses it as it
+would a drive) is encoded at 1920x1080, 30 fps; then, each in a fresh process so that peak memory
+is its own:
+
+* baseline: PyAV decodes every frame and converts none (the floor any intake pays);
+* intake: ``bundle.video.frames.decode_frames`` at 10 Hz with the image-motion signal fed, as
+  the worker runs it (JPEG writes included).
+
+The table gives seconds per minute of video, their ratio (the machine's speed cancels) and each
+process's peak resident memory.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+WIDTH, HEIGHT, FPS = 1920, 1080, 30
+
+
+def _frames(n: int):
+    rng = np.random.default_rng(0)
+    import cv2
+
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (HEIGHT, WIDTH * 3, 3), np.uint8), (0, 0), 3)
+    for i in range(n):
+        x = int(i * 6) % (WIDTH * 2)
+        yield np.ascontiguousarray(texture[:, x:x + WIDTH])
+
+
+def _baseline(video: str, queue) -> None:
+    import av
+
+    t0 = time.perf_counter()
+    with av.open(video) as c:
+        stream = c.streams.video[0]
+        stream.thread_type = "AUTO"
+        n = sum(1 for _ in c.decode(stream))
+    queue.put((time.perf_counter() - t0, n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))
+
+
+def _intake(video: str, out_dir: str, queue) -> None:
+    import cv2
+
+    from app.pipeline.bundle.video.frames import FrameChoice, decode_frames
+    from app.pipeline.bundle.video.motion import ImageMotion
+
+    motion = ImageMotion()
+    t0 = time.perf_counter()
+    decoded = decode_frames(Path(video), "video.mp4", FrameChoice(10.0), Path(out_dir),
+                            on_kept=lambda t, bgr: motion.add(t, cv2.cvtColor(bgr,
+                                                                              cv2.COLOR_BGR2GRAY)))
+    motion.signal()
+    queue.put((time.perf_counter() - t0, len(decoded.index),
+               resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))
+
+
+def _run(target, *args):
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=target, args=(*args, queue))
+    proc.start()
+    result = queue.get()
+    proc.join()
+    return result
+
+
+def run_video_bench(seconds: float, out_dir: Path) -> Path:
+    from app.synth.video.encode import write_video
+
+    n = int(seconds * FPS)
+    with tempfile.TemporaryDirectory(prefix="signmap-video-bench-") as tmp:
+        video = write_video(_frames(n), np.arange(n) / FPS, Path(tmp) / "v.mp4",
+                            creation_utc=None, fps=FPS, crf=23)
+        size_mb = video.stat().st_size / 2**20
+        base_s, n_base, base_kb = _run(_baseline, str(video))
+        intake_s, n_kept, intake_kb = _run(_intake, str(video), str(Path(tmp) / "frames"))
+        scratch_mb = sum(p.stat().st_size for p in (Path(tmp) / "frames").iterdir()) / 2**20
+    per_min = 60.0 / seconds
+    rows = [("decode only (baseline)", base_s * per_min, 1.0, base_kb / 1024, n_base, "-"),
+            ("intake: decode, keep 10 Hz, JPEG, image motion", intake_s * per_min,
+             intake_s / base_s, intake_kb / 1024, n_kept, f"{scratch_mb * per_min:.0f} MB")]
+    md = [f"# Video intake, {WIDTH}x{HEIGHT} {FPS} fps H.264 ({seconds:.0f} s, {size_mb:.0f} MB)",
+          "", "| step | s per minute of video | ratio to decode only | peak memory (MB) | "
+          "frames | scratch per minute |", "| --- | --- | --- | --- | --- | --- |"]
+    md += [f"| {r[0]} | {r[1]:.1f} | {r[2]:.2f} | {r[3]:.0f} | {r[4]} | {r[5]} |" for r in rows]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "video-intake.md"
+    path.write_text("\n".join(md) + "\n")
+    (out_dir / "video-intake.json").write_text(json.dumps(
+        {"seconds": seconds, "rows": [dict(zip(("step", "s_per_min", "ratio", "peak_mb",
+                                                "frames", "scratch"), r)) for r in rows]},
+        indent=1))
+    return path
