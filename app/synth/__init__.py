@@ -4,6 +4,7 @@
 ``write_bundle``): ``street`` builds the world (road, layout, textures), ``drive`` moves the camera
 along it and logs the GPS, ``camera`` renders the frames through the lens, adds the image effects
 and makes the on-board detections, and ``bundle`` writes the wire contract's zip and
-``truth.json``. ``corpus`` writes many varied journeys, drawn by ``draw`` (``draw_parts``). Never
+``truth.json``. ``corpus`` writes many varied journeys, drawn by ``draw``; ``video`` turns a
+journey into the video bundle a dash cam fleet uploads (MP4, NMEA or GPX, a wrong clock). Never
 imports the service.
 """

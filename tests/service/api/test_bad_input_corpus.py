@@ -15,6 +15,7 @@ from typing import Callable
 
 import pytest
 
+from tests.pipeline.video import bundles as vb
 from tests.utils import hostile_bundles as hb
 from tests.utils.stack import auth, sqlite_stack
 
@@ -60,6 +61,16 @@ CASES: dict[str, Case] = {
     "frame_declaring_1000_bytes_inflating_to_250_mib": Case(
         hb.frame_lying_about_its_size, 422,
         "frames/000002.png in the bundle is corrupt or unreadable (Bad CRC-32", max_s=5.0),
+    # Video journeys (issue 65): the upload reads the container header and one frame only.
+    "video_not_a_video": Case(vb.not_a_video, 422, "video.mp4 is not a video this service can"),
+    "video_truncated_container": Case(vb.truncated_container, 422, "video.mp4 is not a video"),
+    "video_no_decodable_frame": Case(vb.no_decodable_frame, 422,
+                                     "video.mp4: no frame of its h264 stream decodes"),
+    "video_two_videos": Case(vb.two_videos, 422, "bundle has 2 videos"),
+    "video_gps_a_day_later": Case(vb.gps_a_day_later, 422,
+                                  "the GPS does not overlap the video in time"),
+    "video_garbage_nmea": Case(vb.garbage_nmea, 422, "gps.nmea has no usable fix"),
+    "video_no_gps": Case(vb.no_gps, 422, "no GPS: video.mp4 carries no GPS track"),
 }
 
 

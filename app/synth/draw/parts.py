@@ -1,4 +1,4 @@
-"""The parts of a corpus journey draw (``app.synth.draw``). Each takes the journey's generator,
+"""The parts of a corpus journey draw (``app.synth.draw``, this package). Each takes the journey's generator,
 records what it drew in ``params`` (flat, JSON-able) and returns what ``SynthConfig`` needs."""
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from app.synth.config import SynthConfig
-from app.synth.draw_parts import (GPS_RATES_HZ, draw_camera, draw_detector, draw_effects,
+from app.synth.draw.parts import (GPS_RATES_HZ, draw_camera, draw_detector, draw_effects,
                                   draw_gps, draw_road, draw_scene)
 from app.synth.drive.trajectory import camera_poses, fix_times
 from app.synth.street.world import road_for
