@@ -255,7 +255,7 @@ def _kept_mask(valid: _Valid) -> np.ndarray:
     return keep
 
 
-def _video_entry(bz: BundleZip) -> str | None:
+def video_entry(bz: BundleZip) -> str | None:
     """The bundle's video (contract 1a: one video file at its top level), None for frames."""
     videos = [n for n in bz.files if "/" not in n and n.lower().endswith(VIDEO_SUFFIXES)]
     if len(videos) > 1:
@@ -288,7 +288,7 @@ def check_bundle(zip_path: Path, limits: BundleLimits = BundleLimits(), *,
                  decode_images: bool = True) -> BundleCheck:
     """Validate the bundle at ``zip_path`` without writing anything or building tracks."""
     with open_bundle(Path(zip_path), limits) as bz:
-        video = _video_entry(bz)
+        video = video_entry(bz)
         if video is not None:
             return _check_video(bz, video, limits)
         valid = _validate(bz, limits, decode_images, frames_dir=None)
@@ -305,7 +305,7 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
     """Validate the bundle at ``zip_path``, extract its frames under ``extract_dir/frames/`` (a
     video's: decode it and keep the frames the pipeline needs, ``progress`` of the decoding)."""
     with open_bundle(Path(zip_path), limits) as bz:
-        video = _video_entry(bz)
+        video = video_entry(bz)
         if video is not None:
             from app.pipeline.bundle.video.read import read_video
 

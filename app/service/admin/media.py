@@ -15,6 +15,9 @@ import cv2
 import numpy as np
 
 from app.pipeline.bundle import FRAME_EXTENSIONS, read_bundle
+from app.pipeline.bundle.read import video_entry
+from app.pipeline.bundle.video.frames import read_frame
+from app.pipeline.bundle.video.read import read_gps_log
 from app.pipeline.bundle.zip import BundleLimits, open_bundle
 from app.pipeline.geometry.geodesy import frame_at
 from app.service.storage import BundleStore
@@ -48,16 +51,25 @@ def _write_atomic(path: Path, data: bytes) -> None:
 
 
 def gps_track(data_dir: Path, store: BundleStore, sha256: str) -> list[list[float]]:
-    """[[lat, lon], ...] per frame, as the pipeline reads it (csv, gpx or EXIF)."""
+    """[[lat, lon], ...] per frame, as the pipeline reads it (csv, gpx or EXIF); a video
+    journey's GPS fixes."""
     cached = cache_dir(data_dir) / f"{sha256}.gps.json"
     if cached.exists():
         return json.loads(cached.read_text())
     scratch = Path(tempfile.mkdtemp(dir=data_dir))
     try:
-        journey = read_bundle(_bundle(data_dir, store, sha256), scratch, decode_images=False)
+        bundle = _bundle(data_dir, store, sha256)
+        with open_bundle(bundle, BundleLimits()) as bz:
+            video = video_entry(bz)
+            if video is not None:  # its fixes: decoding the video is the worker's job
+                fixes = read_gps_log(bz, video, scratch, BundleLimits()).fixes
+                lat, lon = fixes.lat_deg, fixes.lon_deg
+        if video is None:
+            journey = read_bundle(bundle, scratch, decode_images=False)
+            lat, lon = journey.lat_deg, journey.lon_deg
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    track = [[float(a), float(o)] for a, o in zip(journey.lat_deg, journey.lon_deg)]
+    track = [[float(a), float(o)] for a, o in zip(lat, lon)]
     _write_atomic(cached, json.dumps(track).encode())
     return track
 
@@ -91,6 +103,26 @@ def crop_box(image_bgr: np.ndarray, box: list[float] | None) -> np.ndarray:
     return out[top:bottom, left:right]
 
 
+def _video_frame(data_dir: Path, bz, video: str, sha256: str, frame_id: str):
+    """Frame ``frame_id`` (six digits: its presentation index) of a video bundle, None when there
+    is none; the video is extracted once into the cache (like the fetched bundles, only the few
+    most recently used are kept)."""
+    if not (frame_id.isascii() and frame_id.isdigit()):
+        return None
+    videos = cache_dir(data_dir) / "videos"
+    path = videos / f"{sha256}{Path(video).suffix.lower()}"
+    if not path.exists():
+        videos.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=videos)
+        with os.fdopen(fd, "wb") as out, bz.open(video) as src:
+            shutil.copyfileobj(src, out, 1 << 20)
+        os.replace(tmp, path)
+        by_use = sorted(videos.iterdir(), key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in by_use[KEEP_FETCHED:]:
+            old.unlink(missing_ok=True)
+    return read_frame(path, int(frame_id))
+
+
 def crop_png(data_dir: Path, store: BundleStore, sha256: str, frame_id: str,
              box: list[float] | None) -> bytes | None:
     """PNG of ``frame_id``'s crop around ``box``; None when the bundle has no such frame."""
@@ -99,12 +131,15 @@ def crop_png(data_dir: Path, store: BundleStore, sha256: str, frame_id: str,
     if cached.exists():
         return cached.read_bytes()
     with open_bundle(_bundle(data_dir, store, sha256), BundleLimits()) as bz:
-        names = [f"frames/{frame_id}.{ext}" for ext in FRAME_EXTENSIONS]
-        name = next((n for n in names if n in bz.files), None)
-        if name is None:
-            return None
-        data = bz.read(name)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        video = video_entry(bz)
+        if video is not None:
+            image = _video_frame(data_dir, bz, video, sha256, frame_id)
+        else:
+            names = [f"frames/{frame_id}.{ext}" for ext in FRAME_EXTENSIONS]
+            name = next((n for n in names if n in bz.files), None)
+            if name is None:
+                return None
+            image = cv2.imdecode(np.frombuffer(bz.read(name), np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         return None
     ok, png = cv2.imencode(".png", crop_box(image, box))

@@ -105,3 +105,24 @@ def decode_frames(source: Path | BinaryIO, name: str, choice: FrameChoice, out_d
         raise BundleError(f"{name}: no frame of the video decodes; the video is corrupt")
     return DecodedFrames(np.array(index), np.array(times, float), paths, np.array(by_det, bool),
                          n_decoded, warning)
+
+
+def read_frame(source: Path, index: int) -> np.ndarray | None:
+    """Frame ``index`` (presentation order) as BGR pixels, None past the end: seeks to the key
+    frame before its nominal time (index / rate) and decodes forward. Exact for constant-rate
+    video (what dash cams record); for variable rate it may land a frame or two off, which is what
+    a picture of the frame (the dashboard's crops) can afford and a measurement could not."""
+    try:
+        with av.open(str(source), "r") as container:
+            stream = container.streams.video[0]
+            fps = float(stream.average_rate or stream.guessed_rate or 30)
+            start = stream.start_time or 0
+            target = start + int(index / fps / stream.time_base)
+            container.seek(target, stream=stream, backward=True, any_frame=False)
+            for frame in container.decode(stream):
+                at = round(float((frame.pts - start) * stream.time_base) * fps)
+                if at >= index:
+                    return frame.to_ndarray(format="bgr24")
+    except (av.FFmpegError, ValueError, OSError):
+        return None
+    return None

@@ -244,3 +244,16 @@ def read_video(bz: BundleZip, manifest: Manifest, name: str, extract_dir: Path,
                    gps_accuracy_m=frame_gps.accuracy_m, intake=(intake,),
                    gps_fixes=GpsTrack(log.fixes.timestamp_s, log.fixes.lat_deg,
                                       log.fixes.lon_deg, log.fixes.alt_m))
+
+
+def read_gps_log(bz: BundleZip, name: str, scratch: Path, limits: BundleLimits) -> GpsLog:
+    """The video bundle's GPS fixes without decoding the video (the dashboard's map of a
+    journey); the video is extracted under ``scratch`` only when its own track holds them."""
+    with bz.open(name) as fp:
+        header = probe_video(fp, name, limits, decode_first=False)
+    log = _gps_log(bz, header, limits)
+    if log is None:
+        log = read_embedded_gps(_extract(bz, name, scratch / name), max_points=limits.max_gps_rows)
+    if log is None:
+        raise BundleError(f"no GPS: {name} has no readable GPS track")
+    return log
