@@ -91,7 +91,7 @@ def run_corpus_command(args) -> int:
                            config_overrides=dict(args.set or []), tag=args.tag,
                            resume=args.resume, keep_dir=args.keep_reconstructions,
                            replay_dir=args.replay, focal_scale=args.true_camera_focal_scale,
-                           stored_camera=args.stored_camera)
+                           stored_camera=args.stored_camera, as_video=args.as_video)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -292,7 +292,7 @@ def _add_pose_error_parser(bench_sub) -> None:
 def run_video_command(args) -> int:
     from bench.studies.video_decode import run_video_bench
 
-    md = run_video_bench(args.seconds, args.out)
+    md = run_video_bench(args.seconds, args.out, args.size, args.fps)
     print(md.read_text())
     print(f"wrote {md}")
     return 0
@@ -307,6 +307,9 @@ def _add_video_parser(bench_sub) -> None:
         "their ratio and peak memory.")
     g.add_argument("--seconds", type=float, default=20.0,
                    help="length of the video made (default: %(default)s)")
+    g.add_argument("--size", choices=("1080p", "4k"), default="1080p",
+                   help="frame size (default: %(default)s)")
+    g.add_argument("--fps", type=int, default=30, help="frame rate (default: %(default)s)")
     g.set_defaults(func=run_video_command)
 
 
@@ -331,6 +334,11 @@ def _add_corpus_parser(bench_sub) -> None:
                    help="with --true-camera or --stored-camera: hand over fx and fy times F "
                         "(0.97: a calibration "
                         "3 %% short), to see what a focal error does to the later stages")
+    c.add_argument("--as-video", action="store_true",
+                   help="run each journey as the video bundle a dash cam would upload (H.264 "
+                        "video.mp4 + gps.nmea, its clock off GPS time by a few whole seconds "
+                        "drawn from the journey's name, undeclared): records the clock error "
+                        "estimated against the true one")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")

@@ -5,6 +5,10 @@ A corpus is many small journeys whose cameras, scenes and turns vary; ``corpus.j
 with their parameters and splits them into a "tuning" half (to choose knobs on) and a "check" half
 (to confirm a choice on journeys it was not tuned on). Records are appended to a JSONL file as the
 journeys finish, so a long run that dies keeps what it had and ``resume`` continues it.
+
+``as_video``: each journey goes in as the video bundle a dash cam would upload
+(docs/journey-format.md 1a) instead of its frames bundle, with a camera clock error the service
+must estimate; its record says how well it did (``clock_error_s`` against ``clock_error_est_s``).
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
+import re
 import sys
 import tempfile
 import time
@@ -23,7 +28,7 @@ import numpy as np
 
 from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
-from app.pipeline.types import CameraModel, JourneyResult
+from app.pipeline.types import CameraModel, JourneyResult, StageReport
 from bench.corpus import replay
 from bench.corpus import report as corpus_report
 from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
@@ -35,9 +40,16 @@ CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
 RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of",
-                "true_camera_focal_scale", "stored_camera")
+                "true_camera_focal_scale", "stored_camera", "as_video")
 # What a run written before a field of RUN_IDENTITY existed had instead.
-IDENTITY_BEFORE = {"true_camera_focal_scale": 1.0, "stored_camera": False}
+IDENTITY_BEFORE = {"true_camera_focal_scale": 1.0, "stored_camera": False, "as_video": False}
+# A hand-set dash cam clock is seconds off GPS time; whole seconds, because an MP4's creation_time
+# holds no fraction (a fractional error would be written truncated, and the truth be wrong).
+CLOCK_ERROR_MAX_S = 5
+# The "video" stage report's summary (app.pipeline.bundle.video.read._offset).
+CLOCK_ESTIMATED = re.compile(r"clock offset estimated: the camera's clock is ([-+]?[\d.]+) s "
+                             r"± ([\d.]+) s")
+CLOCK_NOT_ESTIMATED = re.compile(r"clock offset not estimated \((.*)\); .* stands")
 
 
 class CorpusPaths(NamedTuple):
@@ -130,6 +142,11 @@ def bundle_digest(bundle: Path) -> str | None:
     return hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
 
 
+def stage_reports(out: RunOutput) -> tuple[StageReport, ...]:
+    """The stage reports of a run, whether it succeeded or failed."""
+    return tuple(out.result.report) if out.result is not None else out.failure_report
+
+
 def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: bool,
                    digest: str | None = None) -> dict:
     """The JSON record of one journey's run; ``digest``: its bundle's ``bundle_digest``."""
@@ -142,9 +159,8 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
               "calibration": None,
               # One line per candidate tried (its registration, turn and the GPS's, the verdict):
               # what a knob that only refuses candidates would change can be read off it.
-              "calib_trials": next((list(r.details) for r in (
-                  out.result.report if out.result is not None else out.failure_report)
-                  if r.stage == "calibrate"), [])}
+              "calib_trials": next((list(r.details) for r in stage_reports(out)
+                                    if r.stage == "calibrate"), [])}
     if out.result is None:
         return record
     record["calibration"] = calibration_record(out.result, truth["camera"])
@@ -211,10 +227,69 @@ def _why_not(sign_id: str, truth: dict, rejected: dict[str, str], became: str | 
     return f"not placed, no reason given (track {track})"
 
 
+def clock_error_of(name: str) -> int:
+    """The camera clock error (s) a journey gets as a video: a whole number in
+    [-CLOCK_ERROR_MAX_S, CLOCK_ERROR_MAX_S], never 0, drawn from its name so that every run, resume
+    and machine gives a journey the same one (Python's own ``hash`` is salted per process)."""
+    n = CLOCK_ERROR_MAX_S
+    k = int(hashlib.sha256(name.encode()).hexdigest(), 16) % (2 * n)
+    return k - n if k < n else k - n + 1
+
+
+class VideoInput(NamedTuple):
+    """A journey's frames bundle as a dash cam's video bundle; ``bundle`` None when the conversion
+    failed (``error`` says why)."""
+
+    bundle: Path | None
+    clock_error_s: int
+    convert_s: float
+    error: str | None
+
+
+def video_input(name: str, frames_zip: Path, out_dir: Path) -> VideoInput:
+    """``frames_zip`` as ``out_dir/video.zip``: H.264 MP4, its GPS fixes as given in NMEA and an
+    undeclared clock error (``clock_error_of``); detections kept, since a dash cam's detector
+    sends them too and the video reader keeps the frames they are on."""
+    from app.synth.video.bundle import video_bundle
+
+    clock_error_s = clock_error_of(name)
+    t0 = time.perf_counter()
+    try:
+        bundle: Path | None = video_bundle(frames_zip, out_dir / "video.zip", gps_format="nmea",
+                                           gps_rate_hz=None, clock_error_s=float(clock_error_s))
+        error = None
+    except Exception as exc:  # noqa: BLE001 - e.g. no H.264 encoder: that journey's record says so
+        bundle, error = None, f"video conversion: {type(exc).__name__}: {exc}"
+    return VideoInput(bundle, clock_error_s, round(time.perf_counter() - t0, 2), error)
+
+
+def video_clock(reports: tuple[StageReport, ...]) -> dict[str, Any]:
+    """The clock error the "video" stage estimated, its sigma, and why not when it did not (the
+    video never read: the run failed before, its ``error`` says how)."""
+    video = next((r for r in reports if r.stage == "video"), None)
+    if video is None:
+        return {"clock_error_est_s": None, "clock_error_sigma_s": None,
+                "clock_offset_reason": "no video report (the run failed before reading it)"}
+    if found := CLOCK_ESTIMATED.search(video.summary):
+        return {"clock_error_est_s": float(found.group(1)),
+                "clock_error_sigma_s": float(found.group(2)), "clock_offset_reason": None}
+    refused = CLOCK_NOT_ESTIMATED.search(video.summary)
+    return {"clock_error_est_s": None, "clock_error_sigma_s": None,
+            "clock_offset_reason": refused.group(1) if refused else video.summary}
+
+
+def video_fields(video: VideoInput, out: RunOutput) -> dict[str, Any]:
+    """What a video run adds to a journey's record; ``video_convert_s`` is kept out of
+    ``wall_s`` and ``timings_s`` so that they compare with a frames run's."""
+    return {"clock_error_s": video.clock_error_s, "video_convert_s": video.convert_s,
+            **video_clock(stage_reports(out))}
+
+
 def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
                 calibrate_only: bool, true_camera: bool = False, *,
                 keep_dir: Path | None = None, replay_dir: Path | None = None,
-                focal_scale: float = 1.0, stored_camera: bool = False) -> dict:
+                focal_scale: float = 1.0, stored_camera: bool = False,
+                as_video: bool = False) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
     that sign placement is measured on every journey, those without turns included.
@@ -222,7 +297,9 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     instead of running the pipeline (``bench.corpus.replay``). ``focal_scale``: the true camera's fx
     and fy are handed over times this (what a calibration that many per cent off does to the
     later stages). ``stored_camera``: the true camera (times ``focal_scale``) is handed over as
-    the camera's stored calibration, as the service does, and the journey still calibrates itself."""
+    the camera's stored calibration, as the service does, and the journey still calibrates itself.
+    ``as_video``: run it as a dash cam's video bundle (``video_input``), made in the journey's
+    temporary directory; ``bundle_digest`` stays the frames bundle's, the rendering both share."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
     digest = bundle_digest(jdir / "bundle.zip")
@@ -238,17 +315,27 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
         return journey_record(entry, _replayed(entry["name"], replay_dir, config), truth,
                               calibrate_only=calibrate_only, digest=digest)
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
-        task = RunTask(entry["name"], jdir / "bundle.zip", Path(tmp), config.model_dump(),
-                       known_camera=known, calibrate_only=calibrate_only,
-                       keep_reconstruction=(None if keep_dir is None
-                                            else replay.path_for(keep_dir, entry["name"])))
-        t0 = time.perf_counter()
-        try:
-            out = run_isolated(task)
-        except Exception as exc:  # noqa: BLE001 - e.g. an unreadable bundle: raised in the child
-            out = RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
-                            time.perf_counter() - t0, {}, {})
-    return journey_record(entry, out, truth, calibrate_only=calibrate_only, digest=digest)
+        video = video_input(entry["name"], jdir / "bundle.zip", Path(tmp)) if as_video else None
+        bundle = jdir / "bundle.zip" if video is None else video.bundle
+        if video is not None and bundle is None:
+            out = RunOutput(entry["name"], None, video.error, 0, 0.0, {}, {})
+        else:
+            task = RunTask(entry["name"], bundle, Path(tmp), config.model_dump(),
+                           known_camera=known, calibrate_only=calibrate_only,
+                           keep_reconstruction=(None if keep_dir is None
+                                                else replay.path_for(keep_dir, entry["name"])))
+            out = _run(task)
+    record = journey_record(entry, out, truth, calibrate_only=calibrate_only, digest=digest)
+    return record if video is None else {**record, **video_fields(video, out)}
+
+
+def _run(task: RunTask) -> RunOutput:
+    t0 = time.perf_counter()
+    try:
+        return run_isolated(task)
+    except Exception as exc:  # noqa: BLE001 - e.g. an unreadable bundle: raised in the child
+        return RunOutput(task.label, None, f"{type(exc).__name__}: {exc}", 0,
+                         time.perf_counter() - t0, {}, {})
 
 
 def _replayed(name: str, replay_dir: Path, config: PipelineConfig) -> RunOutput:
@@ -263,6 +350,14 @@ def _replayed(name: str, replay_dir: Path, config: PipelineConfig) -> RunOutput:
     timings = {"read": 0.0, **(result.timings_s if result else {})}
     return RunOutput(name, result, error, len(journey.frames), seconds, timings, {},
                      detections=detections_of(journey))
+
+
+def _clock_note(record: dict) -> str:
+    if "clock_error_s" not in record:
+        return ""
+    est = record["clock_error_est_s"]
+    return (f"; camera clock {record['clock_error_s']:+d} s, "
+            + ("not estimated" if est is None else f"estimated {est:+.2f} s"))
 
 
 def read_jsonl(path: Path) -> tuple[dict | None, list[dict]]:
@@ -307,15 +402,18 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                config_overrides: dict[str, Any] | None = None,
                tag: str = "", resume: bool = False, keep_dir: Path | None = None,
                replay_dir: Path | None = None, focal_scale: float = 1.0,
-               stored_camera: bool = False) -> CorpusPaths:
+               stored_camera: bool = False, as_video: bool = False) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
     .jsonl (records), .md, .json and .png into ``out_dir``. ``keep_dir`` / ``replay_dir``: keep
     each journey's reconstruction there, or only georeference those kept there
-    (``bench.corpus.replay``); a replayed record's ``timings_s`` up to ego-motion are the kept run's."""
+    (``bench.corpus.replay``); a replayed record's ``timings_s`` up to ego-motion are the kept run's.
+    ``as_video``: each journey as a dash cam's video bundle (``run_journey``)."""
     corpus_dir, out_dir = Path(corpus_dir), Path(out_dir)
     if keep_dir is not None and replay_dir is not None:
         raise ValueError("a replay keeps no reconstruction: give --keep-reconstructions or "
                          "--replay, not both")
+    if as_video and replay_dir is not None:
+        raise ValueError("a replay reads no bundle: give --as-video or --replay, not both")
     if replay_dir is not None and not Path(replay_dir).is_dir():
         raise ValueError(f"--replay {replay_dir}: no such directory")
     overrides = dict(config_overrides or {})
@@ -329,7 +427,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
             "corpus_seed": index.get("seed"), "corpus_n": index.get("n"),
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
             "true_camera": true_camera, "true_camera_focal_scale": focal_scale,
-            "stored_camera": stored_camera,
+            "stored_camera": stored_camera, "as_video": as_video,
             "config_overrides": overrides, "tag": tag,
             "replay_of": None if replay_dir is None else str(Path(replay_dir).resolve())}
     meta.pop("quick", None)
@@ -354,11 +452,11 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
         log(f"[{i}/{len(todo)}] {entry['name']} ({entry.get('half')}): running")
         record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera,
                              keep_dir=keep_dir, replay_dir=replay_dir, focal_scale=focal_scale,
-                             stored_camera=stored_camera)
+                             stored_camera=stored_camera, as_video=as_video)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"
-            + (f" ({record['error']})" if record["error"] else ""))
+            + (f" ({record['error']})" if record["error"] else "") + _clock_note(record))
         # The report is rewritten after every journey, like the suite's: it is cheap.
         corpus_report.write_report(meta, records, paths.markdown, paths.json, paths.png,
                                    time.perf_counter() - t0)

@@ -1,7 +1,7 @@
-"""``signmap bench video``: what a video journey's intake costs the worker, per minute of 1080p30.
+"""``signmap bench video``: what a video journey's intake costs the worker, per minute of video.
 
-A moving texture (a camera panning across a rendered street texture, so H.264 compresses it as it
-would a drive) is encoded at 1920x1080, 30 fps; then, each in a fresh process so that peak memory
+A moving texture (a camera panning across a blurred noise texture) is encoded as H.264 at 1080p or
+4K and 30 or 60 fps; then, each in a fresh process so that peak memory
 is its own:
 
 * baseline: PyAV decodes every frame and converts none (the floor any intake pays);
@@ -14,7 +14,6 @@ process's peak resident memory.
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
 import tempfile
 import time
@@ -22,17 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-WIDTH, HEIGHT, FPS = 1920, 1080, 30
+SIZES = {"1080p": (1920, 1080), "4k": (3840, 2160)}
 
 
-def _frames(n: int):
+def _frames(n: int, width: int, height: int):
     rng = np.random.default_rng(0)
     import cv2
 
-    texture = cv2.GaussianBlur(rng.integers(0, 255, (HEIGHT, WIDTH * 3, 3), np.uint8), (0, 0), 3)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (height, width * 3, 3), np.uint8), (0, 0), 3)
     for i in range(n):
-        x = int(i * 6) % (WIDTH * 2)
-        yield np.ascontiguousarray(texture[:, x:x + WIDTH])
+        x = int(i * 6) % (width * 2)
+        yield np.ascontiguousarray(texture[:, x:x + width])
 
 
 def _peak_mb() -> float:
@@ -80,13 +79,14 @@ def _run(target, *args):
     return result
 
 
-def run_video_bench(seconds: float, out_dir: Path) -> Path:
+def run_video_bench(seconds: float, out_dir: Path, size: str = "1080p", fps: int = 30) -> Path:
     from app.synth.video.encode import write_video
 
-    n = int(seconds * FPS)
+    width, height = SIZES[size]
+    n = int(seconds * fps)
     with tempfile.TemporaryDirectory(prefix="signmap-video-bench-") as tmp:
-        video = write_video(_frames(n), np.arange(n) / FPS, Path(tmp) / "v.mp4",
-                            creation_utc=None, fps=FPS, crf=15)
+        video = write_video(_frames(n, width, height), np.arange(n) / fps, Path(tmp) / "v.mp4",
+                            creation_utc=None, fps=fps, crf=15)
         size_mb = video.stat().st_size / 2**20
         base_s, n_base, base_mb = _run(_baseline, str(video))
         intake_s, n_kept, intake_mb = _run(_intake, str(video), str(Path(tmp) / "frames"))
@@ -95,15 +95,11 @@ def run_video_bench(seconds: float, out_dir: Path) -> Path:
     rows = [("decode only (baseline)", base_s * per_min, 1.0, base_mb, n_base, "-"),
             ("intake: decode, keep 10 Hz, JPEG, image motion", intake_s * per_min,
              intake_s / base_s, intake_mb, n_kept, f"{scratch_mb * per_min:.0f} MB")]
-    md = [f"# Video intake, {WIDTH}x{HEIGHT} {FPS} fps H.264 ({seconds:.0f} s, {size_mb:.0f} MB)",
+    md = [f"# Video intake, {width}x{height} {fps} fps H.264 ({seconds:.0f} s, {size_mb:.0f} MB)",
           "", "| step | s per minute of video | ratio to decode only | peak memory (MB) | "
           "frames | scratch per minute |", "| --- | --- | --- | --- | --- | --- |"]
     md += [f"| {r[0]} | {r[1]:.1f} | {r[2]:.2f} | {r[3]:.0f} | {r[4]} | {r[5]} |" for r in rows]
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "video-intake.md"
+    path = out_dir / f"video-intake-{size}{fps}.md"
     path.write_text("\n".join(md) + "\n")
-    (out_dir / "video-intake.json").write_text(json.dumps(
-        {"seconds": seconds, "rows": [dict(zip(("step", "s_per_min", "ratio", "peak_mb",
-                                                "frames", "scratch"), r)) for r in rows]},
-        indent=1))
     return path
