@@ -15,13 +15,15 @@ and the offset up to 0.15 s out). For an offset d each image pair k (its frames 
 ``t0_k, t1_k``) is predicted to move ``-f g_k(d) + b dt_k``, ``g_k`` the blurred course change from
 ``t0_k + d`` to ``t1_k + d``; where that course is unknown (off the log, too slow) g_k is 0, so an
 offset pushing the images' turns off the log is not favoured and every offset is judged on the
-same pairs. f (> 0) and b (what driving forward leaves in the images' motion, px/s) are fitted in
-closed form per offset under a Huber loss; the offset is the best of a grid over prior -+ search,
-refined by a bounded scalar search. Its sigma is that of nonlinear least squares in (d, f, b) from
-the Jacobian, the larger of the plain figure and Newey-West's (residuals run on over seconds),
-plus what the fixes' noise moves the match by (NOISE_DRAWS) and a floor. Each of SMOOTH_S is
-tried; of those whose course changes the fixes' noise leaves clean (MAX_NOISE_SHARE), the
-smallest sigma wins. The measurements behind the choices:
+same pairs. f (> 0) and b (what driving forward leaves in the images' motion, px/s; a prior
+N(0, (DRIFT_RAD_S f)^2), so that a steady turn cannot hide in it) are fitted in closed form per
+offset under a Huber loss; the offset is the best of a grid over prior -+ search, refined by a
+bounded scalar search. Its sigma is that of nonlinear least squares in (d, f, b) from the
+Jacobian, the larger of the plain figure and Newey-West's (residuals run on over seconds), plus
+the larger of what the fixes' noise (NOISE_DRAWS) and where they fall (JACKKNIFE_GROUPS) move the
+match by, and a floor. A rival minimum counts only where f is well above zero too. Each of
+SMOOTH_S is tried; of those whose course changes the fixes' noise leaves clean (MAX_NOISE_SHARE),
+the smallest sigma wins. The measurements behind the choices:
 docs/decisions/clock-offset-from-turns.md.
 """
 
@@ -52,6 +54,10 @@ LAG_S = 3.0  # Newey-West bandwidth beyond the blur's own reach (3 sigma)
 # rendered journey's 1 Hz fixes left a sidelobe at 48-77; one turn filmed, two alike logged: 2-24).
 AMBIGUOUS_CHI2 = 36.0
 SECOND_MIN_APART_S = 2.0
+# What driving forward leaves at the centre column (b) is the focus of expansion's distance from
+# it (mount yaw, principal point: up to ~0.05 f) times speed over the corners' depth (up to ~1/s):
+# b's prior sigma is this times f, a turn rate no steady turn is as slow as (3 deg/s).
+DRIFT_RAD_S = 0.05
 MIN_SCALE_T = 5.0  # f must be this many of its sigmas above zero: the images see the GPS's turns
 MAX_SIGMA_S = 1.0
 MIN_PAIRS, MIN_FIXES = 20, 5
@@ -59,6 +65,10 @@ MIN_PAIRS, MIN_FIXES = 20, 5
 # residuals too few independent stretches to tell: that share of sigma is found by matching again
 # (linearised) against the course from the fixes with this many draws of their noise added.
 NOISE_DRAWS = 8
+# Where the fixes happen to fall on a turn (1 Hz: four or five on it) moves the spline's course
+# more than their noise: a grouped jackknife (every JACKKNIFE_GROUPS-th fix left out in turn, the
+# first and last always kept), linearised likewise, measures it; the larger of the two counts.
+JACKKNIFE_GROUPS = 8
 MAX_NOISE_SHARE = 0.1
 SIGMA_FLOOR_S = 0.01  # below what noise-free synthetic journeys are matched to (0.002-0.006 s)
 _BLOCK = 64  # offsets evaluated together (memory: _BLOCK x K floats per array)
@@ -124,7 +134,11 @@ def estimate_clock_offset(t_video_s: np.ndarray, dx_px: np.ndarray, t_gps_s: np.
     rng = np.random.default_rng(0)  # the same journey always gets the same sigma
     draws = [_course(t_fix, xy_fix + rng.normal(0.0, noise_m, xy_fix.shape))
              for _ in range(NOISE_DRAWS)]
-    matches = [_match(course, draws, ends, dx, grid, s) for s in SMOOTH_S]
+    n = np.arange(len(t_fix))
+    knives = [_course(t_fix[keep], xy_fix[keep]) for keep in
+              ((n % JACKKNIFE_GROUPS != j) | (n == 0) | (n == n[-1])
+               for j in range(JACKKNIFE_GROUPS))]
+    matches = [_match(course, draws, knives, ends, dx, grid, s) for s in SMOOTH_S]
     good = [m for m in matches if _refusal(m, prior_offset_s) is None]
     # A blur that leaves the course changes noisy fits a shrunken f and claims a small sigma
     # (10 min, 0.5 m fixes at 10 Hz: f 90 px of 700 at the least blur): the least blur whose
@@ -242,8 +256,8 @@ def _increments(course: _Course, smooth_s: float, ends, offsets: np.ndarray) -> 
     return np.where(ok, np.interp(t1, course.t_s, psi) - np.interp(t0, course.t_s, psi), 0.0)
 
 
-def _match(course: _Course, draws: list[_Course], ends, dx_raw: np.ndarray, grid: np.ndarray,
-           smooth_s: float) -> _Match:
+def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
+           dx_raw: np.ndarray, grid: np.ndarray, smooth_s: float) -> _Match:
     dx = _blurred_dx(ends, dx_raw, smooth_s)
     inner = np.isfinite(dx)
     ends, dx = (ends[0][inner], ends[1][inner]), dx[inner]
@@ -253,14 +267,17 @@ def _match(course: _Course, draws: list[_Course], ends, dx_raw: np.ndarray, grid
         return _increments(course, smooth_s, ends, offsets)
 
     def fit(offsets: np.ndarray, scale: float | None):
-        parts = [_fit_block(-increments(offsets[i:i + _BLOCK]), dt, dx, scale)
+        parts = [_fit_block(-increments(offsets[i:i + _BLOCK]), dt, dx, scale, drift_px_s)
                  for i in range(0, len(offsets), _BLOCK)]
         return [np.concatenate(p) for p in zip(*parts)]
 
-    # The Huber scale: the residual's median absolute value where least squares fits best.
-    loss, f, b, _, resid = fit(grid, None)
+    # The Huber scale: the residual's median absolute value where least squares fits best; the
+    # drift's prior sigma from the f fitted there (none if the images turn against the GPS).
+    drift_px_s = np.inf
+    loss, f, _, _, resid = fit(grid, None)
     at = int(np.argmin(loss))
     scale = max(1.4826 * float(np.median(np.abs(resid[at]))), 1e-9)
+    drift_px_s = DRIFT_RAD_S * float(f[at]) if f[at] > 0 else np.inf
     loss = fit(grid, scale)[0]
     at = int(np.argmin(loss))
     if at in (0, len(grid) - 1):
@@ -269,33 +286,53 @@ def _match(course: _Course, draws: list[_Course], ends, dx_raw: np.ndarray, grid
                            bounds=(grid[at - 1], grid[at + 1]), method="bounded",
                            options={"xatol": 1e-4})
     offset = float(best.x)
-    best_loss, f, b, w, r = (v[0] for v in fit(np.array([offset]), scale))
-    h = STEP_S
-    g, g_lo, g_hi = increments(np.array([offset, offset - h, offset + h]))
-    # Columns: d/d offset, d/d f, d/d b of the prediction -f g + b dt.
-    jac = np.column_stack([-f * (g_hi - g_lo) / (2 * h), -g, dt])
     lags = int(round((LAG_S + 3 * smooth_s) / max(float(np.median(dt)), 1e-9)))
-    plain, lagged = _covariances(jac, w, r, lags)
+
+    def solve(d: float):
+        """At offset ``d``: loss, f, w, r, the Jacobian and the covariances (plain, lagged)."""
+        loss_d, f_d, _, w_d, r_d = (v[0] for v in fit(np.array([d]), scale))
+        g_d, g_lo, g_hi = increments(np.array([d, d - STEP_S, d + STEP_S]))
+        # Columns: d/d offset, d/d f, d/d b of the prediction -f g + b dt.
+        jac_d = np.column_stack([-f_d * (g_hi - g_lo) / (2 * STEP_S), -g_d, dt])
+        return (loss_d, f_d, w_d, r_d, g_d, jac_d) + _covariances(jac_d, w_d, r_d, lags,
+                                                                  drift_px_s)
+
+    best_loss, f, w, r, g, jac, plain, lagged = solve(offset)
     # Each draw's course moves the prediction by -f dg: the fit answers with gain @ (f dg).
-    gain = np.linalg.pinv(jac.T @ (w[:, None] * jac)) @ (jac * w[:, None]).T
+    prior = np.diag([0.0, 0.0, (scale / drift_px_s) ** 2])
+    gain = np.linalg.pinv(jac.T @ (w[:, None] * jac) + prior) @ (jac * w[:, None]).T
     dg = [_increments(d, smooth_s, ends, np.array([offset]))[0] - g for d in draws]
     gps_var = float(np.mean([(gain[0] @ (f * e)) ** 2 for e in dg])) if dg else 0.0
     noise_share = float(np.mean([e @ e for e in dg]) / max(g @ g, 1e-300)) if dg else 0.0
-    sigma = float(np.sqrt(max(plain[0, 0], lagged[0, 0]) + gps_var + SIGMA_FLOOR_S ** 2))
+    shifts = [gain[0] @ (f * (_increments(k, smooth_s, ends, np.array([offset]))[0] - g))
+              for k in knives]
+    jack_var = (len(shifts) - 1) / len(shifts) * float(np.sum((shifts - np.mean(shifts)) ** 2))
+    sigma = float(np.sqrt(max(plain[0, 0], lagged[0, 0]) + max(gps_var, jack_var)
+                          + SIGMA_FLOOR_S ** 2))
     inflation = max(sigma ** 2 / max(plain[0, 0], 1e-300), 1.0)
-    second = _second_minimum(grid, loss, offset)
-    rival = second is not None and (loss[second] - best_loss) / inflation < AMBIGUOUS_CHI2
+    rival = None
+    for second in _minima(grid, loss, offset):
+        if (loss[second] - best_loss) / inflation >= AMBIGUOUS_CHI2:
+            break
+        # A rival must be a match too: the scene turning with the GPS, f well above zero.
+        there = solve(float(grid[second]))
+        if there[1] > MIN_SCALE_T * np.sqrt(max(there[6][1, 1], there[7][1, 1])):
+            rival = float(grid[second])
+            break
     return _Match(offset, sigma, float(f), float(np.sqrt(max(plain[1, 1], lagged[1, 1]))),
-                  float(grid[second]) if rival else None, False, noise_share)
+                  rival, False, noise_share)
 
 
-def _fit_block(x: np.ndarray, dt: np.ndarray, dx: np.ndarray, scale: float | None):
+def _fit_block(x: np.ndarray, dt: np.ndarray, dx: np.ndarray, scale: float | None,
+               drift_px_s: float = np.inf):
     """Per offset (rows of ``x`` (D, K), the regressor -g): ``dx ~ f x + b dt`` by least
     squares (``scale`` None; loss = RSS) or Huber with ``scale`` (px) by reweighting (loss in
-    scale^2). Returns loss (D,), f (D,), b (D,), weights (D, K), residuals (D, K)."""
+    scale^2, plus b's prior N(0, ``drift_px_s``^2)). Returns loss (D,), f (D,), b (D,), weights
+    (D, K), residuals (D, K)."""
     w = np.ones_like(x)
+    ridge = 0.0 if scale is None else (scale / drift_px_s) ** 2
     for _ in range(1 if scale is None else IRLS_ITERATIONS + 1):
-        sxx, sxd, sdd = (w * x * x).sum(1), (w * x * dt).sum(1), (w * dt * dt).sum(1)
+        sxx, sxd, sdd = (w * x * x).sum(1), (w * x * dt).sum(1), (w * dt * dt).sum(1) + ridge
         sxy, sdy = (w * x * dx).sum(1), (w * dt * dx).sum(1)
         det = sxx * sdd - sxd ** 2
         flat = det <= 1e-12 * np.maximum(sxx * sdd, 1e-300)  # no turn in reach of this offset
@@ -306,15 +343,17 @@ def _fit_block(x: np.ndarray, dt: np.ndarray, dx: np.ndarray, scale: float | Non
             return (r * r).sum(1), f, b, w, r
         w = np.minimum(1.0, HUBER_K * scale / np.maximum(np.abs(r), 1e-300))
     u = np.abs(r) / scale
-    return np.where(u <= HUBER_K, u * u, 2 * HUBER_K * u - HUBER_K ** 2).sum(1), f, b, w, r
+    loss = np.where(u <= HUBER_K, u * u, 2 * HUBER_K * u - HUBER_K ** 2).sum(1)
+    return loss + (b / drift_px_s) ** 2, f, b, w, r
 
 
-def _covariances(jac: np.ndarray, w: np.ndarray, r: np.ndarray, lags: int
+def _covariances(jac: np.ndarray, w: np.ndarray, r: np.ndarray, lags: int, drift_px_s: float
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(3, 3) parameter covariances: plain (white residuals) and Newey-West (Bartlett weights
-    over ``lags`` pairs)."""
-    a_inv = np.linalg.pinv(jac.T @ (w[:, None] * jac))
-    plain = float(np.sum(w * r * r) / max(len(r) - 3, 1)) * a_inv
+    """(3, 3) parameter covariances, b's prior included: plain (white residuals) and Newey-West
+    (Bartlett weights over ``lags`` pairs)."""
+    var = float(np.sum(w * r * r) / max(len(r) - 3, 1))
+    a_inv = np.linalg.pinv(jac.T @ (w[:, None] * jac) + np.diag([0, 0, var / drift_px_s ** 2]))
+    plain = var * a_inv
     score = (w * r)[:, None] * jac  # each pair's share of the gradient
     meat = score.T @ score
     for lag in range(1, min(lags, len(r) - 1) + 1):
@@ -323,9 +362,9 @@ def _covariances(jac: np.ndarray, w: np.ndarray, r: np.ndarray, lags: int
     return plain, a_inv @ meat @ a_inv
 
 
-def _second_minimum(grid: np.ndarray, loss: np.ndarray, offset: float) -> int | None:
-    """Index of the lowest local minimum of ``loss`` on ``grid`` away from ``offset``."""
+def _minima(grid: np.ndarray, loss: np.ndarray, offset: float) -> np.ndarray:
+    """Indices of the local minima of ``loss`` on ``grid`` away from ``offset``, lowest first."""
     inner = np.arange(1, len(grid) - 1)
     minima = inner[(loss[inner] <= loss[inner - 1]) & (loss[inner] <= loss[inner + 1])]
     minima = minima[np.abs(grid[minima] - offset) > SECOND_MIN_APART_S]
-    return None if len(minima) == 0 else int(minima[np.argmin(loss[minima])])
+    return minima[np.argsort(loss[minima], kind="stable")]
