@@ -39,17 +39,22 @@ def nmea(start_utc: datetime = START_UTC - timedelta(seconds=2), seconds: int = 
     return nmea_log(start_utc, t, lat, np.full_like(t, 11.0), np.full_like(t, 500.0))
 
 
-def bundle(members: dict[str, bytes | str], manifest: dict | None = None) -> bytes:
+def bundle(members: dict[str, bytes | str], manifest: dict | None = None,
+           compress_type: int = zipfile.ZIP_STORED) -> bytes:
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w") as z:
         z.writestr("manifest.json", json.dumps(manifest or MANIFEST))
         for name, data in members.items():
-            z.writestr(name, data, compress_type=zipfile.ZIP_STORED)
+            z.writestr(name, data, compress_type=compress_type)
     return out.getvalue()
 
 
 def valid() -> bytes:
     return bundle({"video.mp4": tiny_video(), "gps.nmea": nmea()})
+
+
+def deflated() -> bytes:
+    return bundle({"video.mp4": tiny_video(), "gps.nmea": nmea()}, compress_type=zipfile.ZIP_DEFLATED)
 
 
 def not_a_video() -> bytes:

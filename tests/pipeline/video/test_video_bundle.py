@@ -55,6 +55,14 @@ def test_a_video_over_the_limits_is_refused_before_decoding(tmp_path, limit, det
     assert detail in err.value.reason
 
 
+def test_a_deflated_video_is_read_when_small_and_refused_when_large(tmp_path):
+    path = _write(tmp_path, bundles.deflated())
+    assert check_bundle(path).n_frames == 40
+    with pytest.raises(BundleError) as err:
+        check_bundle(path, BundleLimits(max_member_bytes=1000))
+    assert "video.mp4 is deflated in the zip; store it uncompressed (zip -0" in err.value.reason
+
+
 def test_the_worker_keeps_10_frames_a_second_and_says_so(tmp_path):
     journey = read_bundle(_write(tmp_path, bundles.valid()), tmp_path / "x")
     # 10 fps noise: every frame is on the 10 Hz grid; no turn, so the offset is not estimated.

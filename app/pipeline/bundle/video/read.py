@@ -19,6 +19,7 @@ frame. The worker decodes the video as a stream (``frames``) and keeps the frame
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -132,6 +133,12 @@ def check_video(bz: BundleZip, manifest: Manifest, name: str, limits: BundleLimi
                 video_path: Path | None = None) -> VideoCheck:
     """Validate the video bundle's header, GPS and detections (the upload's check)."""
     bz.check_sizes({name: limits.max_video_bytes})
+    info = bz.files[name]
+    if info.compress_type != zipfile.ZIP_STORED and info.file_size > limits.max_member_bytes:
+        # Its header may sit at its end: reading it would inflate the whole video in the request.
+        raise BundleError(f"{name} is deflated in the zip; store it uncompressed (zip -0, as "
+                          "signmap pack does): a video does not shrink, and a deflated one must "
+                          "be inflated to be read")
     if video_path is not None:
         header = probe_video(video_path, name, limits)
     else:
