@@ -26,6 +26,15 @@ class Settings(BaseSettings):
                           "AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY")
     admin_key: str | None = None
     max_upload_mb: int = 2048
+    # Uploads per key (docs/decisions/upload-rate-limit.md): checking a bundle costs the API CPU, so
+    # one key cannot keep it busy; a fleet's vehicles uploading each journey stay far below.
+    upload_limit_count_per_min: int = Field(
+        30, ge=0, description="uploads one API key may make in a sliding minute (counted before "
+                              "the bundle is checked, so refused ones count); past it, 429 with "
+                              "Retry-After; 0 = no limit")
+    upload_limit_bytes_per_min: int = Field(
+        2 * 2**30, ge=0, description="bytes one API key may upload in a sliding minute; past it, "
+                                     "429 with Retry-After; 0 = no limit")
     bundle: BundleLimits = Field(
         BundleLimits(), description="what one bundle may unpack to and contain (rows, frames, "
         "pixels), checked before the work is spent; SIGNMAP_BUNDLE__<NAME>")

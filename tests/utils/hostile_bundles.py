@@ -2,7 +2,7 @@
 
 Each builder returns the zip's bytes and is cached, so a test session builds each once. They are
 small uploads that used to cost the API seconds to minutes and gigabytes;
-``tests/service/api/test_bad_input_corpus.py`` holds what the service must answer to each, and
+``tests/service/uploads/test_bad_input_corpus.py`` holds what the service must answer to each, and
 ``bench/service/hostile_uploads.py`` measures what each costs the API process.
 """
 

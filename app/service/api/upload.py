@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Callable
 
 from fastapi import HTTPException, Request, status
 from python_multipart.exceptions import FormParserError
@@ -76,10 +76,12 @@ class _BundlePart:
         self.finished = True
 
 
-async def receive_bundle(request: Request, dest: Path, max_bytes: int) -> ReceivedFile:
+async def receive_bundle(request: Request, dest: Path, max_bytes: int,
+                         on_bytes: Callable[[int], None] | None = None) -> ReceivedFile:
     """Write the upload's ``bundle`` field to ``dest``. Raises HTTPException 413 as soon as the body
     passes ``max_bytes``, 415/400/422 for a body that is not a multipart form with that field; ``dest``
-    is removed on every error."""
+    is removed on every error. ``on_bytes`` is told the size of each chunk of the body as it is
+    read (the per-key byte limit counts what was sent, valid or not)."""
     content_type, options = parse_options_header(request.headers.get("content-type"))
     if content_type != b"multipart/form-data" or not options.get(b"boundary"):
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
@@ -96,6 +98,8 @@ async def receive_bundle(request: Request, dest: Path, max_bytes: int) -> Receiv
             received = 0
             async for chunk in request.stream():
                 received += len(chunk)
+                if on_bytes is not None:
+                    on_bytes(len(chunk))
                 if received > max_bytes:
                     raise too_large
                 parser.write(chunk)

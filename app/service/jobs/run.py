@@ -82,7 +82,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         except storage.StorageError as exc:
             raise PipelineError(stage, str(exc)) from exc
         journey = read_bundle(bundle, workdir / "bundle", limits=settings.bundle,
-                              decode_images=False, progress=lambda fraction: progress(
+                              decode_images=True, progress=lambda fraction: progress(
                                   "extract", 0.0, f"video {100 * fraction:.0f} % decoded"))
         progress("extract", 0.0, f"{len(journey.frames)} frames")
         stage = "pipeline"

@@ -10,8 +10,8 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Path, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
-from sqlalchemy import select
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy import select, update
+from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 from sqlalchemy.orm import Session
 
 from app.geojson import feature_collection
@@ -21,11 +21,13 @@ from app.service import storage
 from app.service.api.schemas import (AUTH_ERRORS, NO_NUL, ErrorOut, JourneyAccepted, JourneyOut,
                                      SignCollection, echoed_id)
 from app.service.api.upload import FIELD, receive_bundle
+from app.service.api.upload_limits import admit_upload, upload_limiter
 from app.service.auth import Principal
 from app.service.db import crud, queries
 from app.service.db.models import JourneyRow
 from app.service.deps import Admin, Fleet, SessionDep, SettingsDep
 from app.service.jobs import fusion
+from app.settings import Settings
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/api/v1")
@@ -51,17 +53,23 @@ def _own_journey(session: Session, journey_id: str, who: Principal) -> JourneyRo
     summary="Upload a journey bundle",
     description=f"Multipart form with the journey zip (wire contract, section 1) in the field "
                 f"`{FIELD}`, e.g. `curl -H 'Authorization: Bearer $KEY' -F {FIELD}=@journey.zip "
-                f".../api/v1/journeys`. The bundle is validated before it is queued. Re-uploading "
-                f"the same bytes answers **200** with the existing journey (a failed one is queued "
-                f"again and answers 202).",
+                f".../api/v1/journeys`. The bundle is validated before it is queued (its frames' "
+                f"headers and ends: a frame that does not decode fails the journey's job, naming "
+                f"it). Re-uploading the same bytes answers **200** with the existing journey (a "
+                f"failed one is queued again and answers 202). Each key may make "
+                f"SIGNMAP_UPLOAD_LIMIT_COUNT_PER_MIN uploads of SIGNMAP_UPLOAD_LIMIT_BYTES_PER_MIN "
+                f"bytes in a minute; past that, **429** with Retry-After.",
     responses={200: {"model": JourneyAccepted, "description": "these bytes were uploaded before"},
                400: {"model": ErrorOut, "description": "malformed multipart body"},
                413: {"model": ErrorOut, "description": "over SIGNMAP_MAX_UPLOAD_MB"},
                415: {"model": ErrorOut, "description": "not multipart/form-data"},
                422: {"model": ErrorOut, "description": "the bundle breaks the wire contract"},
-               503: {"model": ErrorOut,
-                     "description": "the job queue or the bundle store is unreachable"},
-               **AUTH_ERRORS},
+               503: {"model": ErrorOut, "description": "the database, the job queue or the "
+                                                       "bundle store is unavailable"},
+               **AUTH_ERRORS,
+               429: {**AUTH_ERRORS[429], "description": "this key made too many uploads, or "
+                     "uploaded too many bytes, in the last minute (or too many unknown keys came "
+                     "from this client address); try again after Retry-After seconds"}},
     # The body is parsed as a stream (not by FastAPI), so its schema is declared here for /docs.
     openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
         "schema": {"type": "object", "required": [FIELD], "properties": {FIELD: {
@@ -69,15 +77,23 @@ def _own_journey(session: Session, journey_id: str, who: Principal) -> JourneyRo
             "description": "the journey bundle (.zip, wire contract section 1)"}}}}}}})
 async def upload_journey(request: Request, who: Fleet, settings: SettingsDep,
                          session: SessionDep) -> JSONResponse:
+    # Counted before the body is read: a flood of broken uploads costs the API as valid ones do.
+    admitted = admit_upload(request, "admin" if who.key_id is None else str(who.key_id))
+    limiter = upload_limiter(request)
     incoming = storage.incoming_path(settings.data_dir)
-    received = await receive_bundle(request, incoming, settings.max_upload_mb * 1024 * 1024)
+    received = await receive_bundle(request, incoming, settings.max_upload_mb * 1024 * 1024,
+                                    on_bytes=lambda n: limiter.received(admitted, n))
     try:
         existing = _existing(request, session, who, received.sha256)
         if existing is not None:
             return existing
         t0 = time.perf_counter()
-        try:  # checks the contract only, writing nothing; the job extracts and builds tracks
-            journey = await run_in_threadpool(check_bundle, incoming, settings.bundle)
+        try:
+            # Checks the contract only, writing nothing: headers and ends of the frames, not their
+            # pixels (decoding 4096x4096 frames costs seconds of CPU each; the job decodes them and
+            # fails, naming the frame, on one that does not decode). The job builds tracks.
+            journey = await run_in_threadpool(check_bundle, incoming, settings.bundle,
+                                              decode_images=False)
         except BundleError as exc:
             log.info("upload by key %s rejected: %s", who.key_id, exc.reason)
             raise HTTPException(422, exc.reason) from exc
@@ -96,29 +112,66 @@ async def upload_journey(request: Request, who: Fleet, settings: SettingsDep,
                      vehicle_id=journey.vehicle_id, captured_at=journey.captured_at,
                      bundle_sha256=received.sha256, bundle_bytes=received.n_bytes,
                      status="queued", progress=0.0, n_frames=journey.n_frames, attempts=0)
+    # From here on the bundle is stored: every way this request fails must take it back, or a
+    # rejected upload leaves a file no journey refers to and no sweep removes.
+    row_kept, shared = False, False
     try:
-        session.add(row)
-        session.commit()  # before it is queued: the job reads the row
-    except IntegrityError:  # the same bytes were accepted concurrently
-        session.rollback()
-        existing = _existing(request, session, who, received.sha256)
-        if existing is not None:
-            return existing
+        try:
+            session.add(row)
+            session.commit()  # before it is queued: the job reads the row
+            row_kept = True
+        except IntegrityError:  # the same bytes were accepted concurrently
+            session.rollback()
+            shared = True
+            existing = _existing(request, session, who, received.sha256)
+            if existing is not None:
+                return existing
+            raise
+        try:
+            request.app.state.queue.submit(row.id)
+        except Exception as exc:
+            log.exception("journey %s: could not be queued; upload undone", row.id)
+            crud.delete_upload(session, row.id)
+            session.commit()
+            row_kept = False
+            raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                                "the job queue is unreachable; try again later") from exc
+    except BaseException:
+        try:
+            session.rollback()
+        except SQLAlchemyError:  # the database is gone: nothing was written to undo
+            log.warning("upload by key %s: rollback failed", who.key_id, exc_info=True)
+        if new_file and not row_kept:
+            _take_back_bundle(request, settings, received.sha256, shared)
         raise
-    try:
-        request.app.state.queue.submit(row.id)
-    except Exception as exc:
-        log.exception("journey %s: could not be queued; upload undone", row.id)
-        crud.delete_upload(session, row.id)
-        session.commit()
-        if new_file:
-            storage.release_bundle(settings.effective_database_url, request.app.state.store,
-                                   row.bundle_sha256)
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
-                            "the job queue is unreachable; try again later") from exc
     log.info("journey %s queued: %d frames, camera %s, %d bytes, key %s, validated in %.1f s",
              row.id, row.n_frames, row.camera_id, row.bundle_bytes, who.key_id, validate_s)
     return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
+
+
+def _take_back_bundle(request: Request, settings: Settings, sha256: str, shared: bool) -> None:
+    """Delete the bundle this upload stored (it was not stored before) unless a journey refers to
+    it: bundles are content-addressed, and another owner may have uploaded the same bytes
+    meanwhile. Never raises: the request's own error is the answer."""
+    store = request.app.state.store
+    try:
+        storage.release_bundle(settings.effective_database_url, store, sha256)
+        return
+    except SQLAlchemyError as exc:
+        if shared:  # another journey's row holds these bytes: keep them
+            log.warning("bundle %s kept: the database cannot be read (%s)", sha256, exc)
+            return
+        # The database cannot tell; this request created the file, and only an upload of the same
+        # bytes by another owner in this very moment could refer to it: a leftover is likelier.
+        log.warning("bundle %s deleted without checking for other journeys: the database cannot "
+                    "be read (%s)", sha256, exc)
+    except Exception:
+        log.exception("bundle %s: could not be taken back after a failed upload", sha256)
+        return
+    try:
+        store.delete(sha256)
+    except Exception:
+        log.exception("bundle %s: could not be taken back after a failed upload", sha256)
 
 
 def _existing(request: Request, session: Session, who: Principal, sha256: str
@@ -132,7 +185,19 @@ def _existing(request: Request, session: Session, who: Principal, sha256: str
     if row is None:
         return None
     if requeued:
-        request.app.state.queue.submit(row.id)
+        try:
+            request.app.state.queue.submit(row.id)
+        except Exception as exc:
+            # Failed again, not queued: a queued row that no queue holds would never run, and its
+            # next re-upload would answer "queued" instead of queueing it.
+            log.exception("journey %s: could not be queued again", row.id)
+            session.execute(update(JourneyRow).where(JourneyRow.id == row.id,
+                                                     JourneyRow.status == "queued")
+                            .values(status="failed", error="could not be queued again: the job "
+                                    "queue was unreachable; upload the bundle again"))
+            session.commit()
+            raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                                "the job queue is unreachable; try again later") from exc
         log.info("journey %s: re-uploaded after failing; queued again", row.id)
         return JSONResponse({"id": row.id, "status": "queued"}, status.HTTP_202_ACCEPTED)
     return JSONResponse({"id": row.id, "status": row.status}, status.HTTP_200_OK)
