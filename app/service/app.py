@@ -4,6 +4,7 @@ for ``uvicorn --factory app.commands.service:create_service_app``)."""
 
 from __future__ import annotations
 
+import errno
 import logging
 from contextlib import asynccontextmanager
 
@@ -16,7 +17,7 @@ from app.service import startup
 from app.service.admin import mount_admin
 from app.service.api.routes import journeys, tiles
 from app.service.api.routes import map as map_routes
-from app.service.db.session import session_scope
+from app.service.db.session import session_scope, write_refusal
 from app.service.jobs.queue import JobQueue, local_queue
 from app.service.api.schemas import ErrorOut
 from app.service.storage import make_store
@@ -73,17 +74,27 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
     app.add_middleware(_JsonErrors)
 
     @app.get("/api/v1/health", summary="Liveness and database check (no key needed)",
+             description="ok only when the database answers a read and takes a write.",
              tags=["ops"], response_model=dict[str, str],
-             responses={503: {"model": ErrorOut, "description": "the database is unreachable"}})
+             responses={503: {"model": ErrorOut,
+                              "description": "the database is unreachable or takes no writes"}})
     def health():
+        url = settings.effective_database_url
         try:
-            with session_scope(settings.effective_database_url) as session:
+            with session_scope(url) as session:
                 session.execute(text("SELECT 1"))
+            # A database that still answers reads can refuse every write (a read-only file or
+            # mount, a full disk, a standby): "ok" then would hide an outage of uploads and jobs.
+            refusal = write_refusal(url)
         except SQLAlchemyError as exc:
-            log.warning("health: database %s unreachable: %s",
-                        startup.safe_url(settings.effective_database_url), exc)
+            log.warning("health: database %s unreachable: %s", startup.safe_url(url), exc)
             return JSONResponse({"detail": f"the database is unreachable "
                                            f"({type(exc).__name__})"}, 503)
+        if refusal:
+            log.warning("health: database %s accepts no writes: %s", startup.safe_url(url),
+                        refusal)
+            return JSONResponse({"detail": f"the database accepts no writes ({refusal}): uploads "
+                                           f"and jobs fail until it does"}, 503)
         return {"status": "ok"}
 
     return app
@@ -91,7 +102,8 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
 
 class _JsonErrors:
     """Every unhandled exception answers JSON ``{"detail": ...}``, never plain text, and is logged
-    once with its traceback. A plain ASGI middleware rather than an exception handler for
+    once: a full disk 507, the database failing 503 (down, read-only, locked), anything else 500
+    with its traceback. A plain ASGI middleware rather than an exception handler for
     ``Exception``: Starlette re-raises after such a handler, and the server would log it twice."""
 
     def __init__(self, app):
@@ -113,7 +125,12 @@ class _JsonErrors:
             if started:  # too late for another answer: the server logs it and drops the connection
                 raise
             where = f"{scope.get('method')} {scope.get('path')}"
-            if isinstance(exc, OperationalError):  # database down, connection lost, locked
+            full = _storage_full(exc)
+            if full is not None:  # not a bug: logged in one line, without the traceback
+                log.error("%s: storage is full: %s", where, full)
+                answer = JSONResponse({"detail": "storage is full on the server; try again later"},
+                                      507)
+            elif isinstance(exc, OperationalError):  # database down, read-only, connection lost
                 log.error("%s: database error", where, exc_info=exc)
                 answer = JSONResponse({"detail": "the database is unavailable; try again later"},
                                       503)
@@ -122,3 +139,28 @@ class _JsonErrors:
                 answer = JSONResponse({"detail": f"internal error ({type(exc).__name__}); "
                                                  f"see the server log"}, 500)
             await answer(scope, receive, send)
+
+
+_SQLITE_FULL = 13  # SQLITE_FULL: "database or disk is full"
+_PG_DISK_FULL = "53100"  # SQLSTATE disk_full
+
+
+def _storage_full(exc: BaseException) -> BaseException | None:
+    """The error in ``exc``'s chain (its causes, what it interrupted, a group's members) saying that
+    a disk or quota is full: an OSError ENOSPC/EDQUOT from a file write, SQLite's SQLITE_FULL,
+    PostgreSQL's disk_full. None when there is none."""
+    seen: set[int] = set()
+    todo: list[BaseException] = [exc]
+    while todo:
+        error = todo.pop()
+        if error is None or id(error) in seen:
+            continue
+        seen.add(id(error))
+        if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+            return error
+        if (getattr(error, "sqlite_errorcode", None) or 0) & 0xFF == _SQLITE_FULL \
+                or getattr(error, "sqlstate", None) == _PG_DISK_FULL:
+            return error
+        todo += [error.__cause__, error.__context__, getattr(error, "orig", None),
+                 *(error.exceptions if isinstance(error, BaseExceptionGroup) else ())]
+    return None

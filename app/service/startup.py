@@ -1,5 +1,6 @@
 """Checks made before the API or a worker says it is up: the data dir is writable, the database is
-reachable and migrated. Each failure is one line naming the path or the URL (password hidden)."""
+reachable, migrated and takes writes. Each failure is one line naming the path or the URL (password
+hidden)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import create_engine, pool
 from sqlalchemy.engine import make_url
 
-from app.service.db.session import REPO_ROOT
+from app.service.db.session import REPO_ROOT, write_refusal
 from app.settings import Settings
 
 
@@ -75,7 +76,19 @@ def check_database(url: str, timeout_s: float = 5.0) -> None:
                            f"this version needs {head}: run `signmap db upgrade`")
 
 
+def check_database_writable(url: str, timeout_s: float = 5.0) -> None:
+    """The database at ``url`` takes writes: a read-only one would accept the service's start and
+    then fail every upload and job."""
+    try:
+        refusal = write_refusal(url, timeout_s)
+    except Exception as exc:
+        raise StartupError(f"database {safe_url(url)} is unreachable: {_one_line(exc)}") from None
+    if refusal:
+        raise StartupError(f"database {safe_url(url)} accepts no writes: {refusal}")
+
+
 def check(settings: Settings) -> None:
     """Every startup check; raises StartupError on the first failure."""
     check_data_dir(settings.data_dir)
     check_database(settings.effective_database_url)
+    check_database_writable(settings.effective_database_url)

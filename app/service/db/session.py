@@ -3,7 +3,9 @@ uses its parent's pooled connections."""
 
 from __future__ import annotations
 
+import logging
 import os
+import sqlite3
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -11,31 +13,88 @@ from typing import Iterator
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Engine, NullPool, create_engine, event, text
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
+log = logging.getLogger(__name__)
 
 _SESSIONS: dict[tuple[str, int], sessionmaker[Session]] = {}
 _LOCK = threading.Lock()
 
 
 def _sqlite_pragmas(dbapi_connection, _record) -> None:
-    # WAL lets the API read while a job writes; foreign keys are off by default in SQLite.
+    # No memory-mapped file, ever: a write to a mapped page that the file system refuses (the file
+    # made immutable with `chattr +i`, its disk gone) is not an error SQLite can return but SIGBUS,
+    # which kills the API and its embedded worker without a line logged. WAL mode maps its -shm
+    # wal-index whatever mmap_size says (only locking_mode=EXCLUSIVE keeps it in heap memory, and
+    # that locks out the job processes), so the rollback journal is used: every write is a plain
+    # write() whose failure is an OperationalError (answered 503). Its cost: a commit waits for the
+    # readers of that moment, and readers wait (busy timeout) while a commit writes, short waits
+    # here where each transaction is a few rows. Foreign keys are off by default in SQLite.
     cursor = dbapi_connection.cursor()
-    cursor.execute("PRAGMA journal_mode=WAL")
+    cursor.execute("PRAGMA mmap_size=0")  # 0 in most builds, not guaranteed by all
+    if cursor.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal":
+        _leave_wal(cursor)
     cursor.execute("PRAGMA foreign_keys=ON")
     cursor.close()
 
 
-def _create_engine(url: str) -> Engine:
+def _leave_wal(cursor) -> None:
+    """Switch a database made by an earlier version (WAL is recorded in the file) to the rollback
+    journal. That needs the only connection to it: while an older process still has it open, this
+    connection stays in WAL, and the next one tries again."""
+    busy_ms = cursor.execute("PRAGMA busy_timeout").fetchone()[0]
+    cursor.execute("PRAGMA busy_timeout=0")  # fail at once rather than hold up a request
+    try:
+        cursor.execute("PRAGMA journal_mode=DELETE")
+    except sqlite3.OperationalError as exc:
+        log.warning("SQLite database still in WAL mode (%s): another process has it open; it "
+                    "leaves WAL when this one is alone with it (restart every Signmap process "
+                    "to make it so)", exc)
+    finally:
+        cursor.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
+
+
+def _create_engine(url: str, **kwargs) -> Engine:
     if not url.startswith("sqlite"):
-        return create_engine(url, pool_pre_ping=True)
+        return create_engine(url, pool_pre_ping=True, **kwargs)
     if url.startswith("sqlite:///"):
         Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
-    engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+    connect_args = {"check_same_thread": False, "timeout": 30, **kwargs.pop("connect_args", {})}
+    engine = create_engine(url, connect_args=connect_args, **kwargs)
     event.listen(engine, "connect", _sqlite_pragmas)
     return engine
+
+
+def write_refusal(url: str, timeout_s: float = 5.0) -> str | None:
+    """Why the database at ``url`` would refuse a write now (None: it takes writes). Raises
+    SQLAlchemyError when it cannot be asked.
+
+    SQLite: a fresh connection (a pooled one opened before the file became read-only still believes
+    it writable) commits a write that changes nothing. Rolling it back would prove nothing: the
+    database file is only written at commit. PostgreSQL: whether the server or the session is
+    read-only, without writing (a standby, ``default_transaction_read_only``)."""
+    if url.startswith("sqlite"):
+        engine = _create_engine(url, poolclass=NullPool, connect_args={"timeout": timeout_s})
+        try:
+            with engine.connect() as connection:
+                connection.execute(text("UPDATE alembic_version SET version_num = version_num"))
+                connection.commit()
+        except OperationalError as exc:
+            return str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
+        finally:
+            engine.dispose()
+        return None
+    with get_engine(url).connect() as connection:
+        standby, read_only = connection.execute(text(
+            "SELECT pg_is_in_recovery(), current_setting('transaction_read_only')")).one()
+    if standby:
+        return "the server is a read-only standby (in recovery)"
+    if read_only == "on":
+        return "transactions are read-only (default_transaction_read_only is on)"
+    return None
 
 
 def _sessionmaker(url: str) -> sessionmaker[Session]:

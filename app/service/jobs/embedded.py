@@ -3,9 +3,12 @@
 A dispatcher thread takes journey ids from an in-memory queue and runs each job (the same
 ``jobs.run_journey`` the Celery task calls) in a spawned child process of its own process group:
 the API stays responsive, a crash of the job cannot take the API down, and stopping the API can end
-the job with its COLMAP grandchildren. The queue is memory only, so on start (and every half
-``stale_after_s``) the database is swept: stale running journeys are requeued, queued ones submitted
-(and work dirs of runs no longer running deleted).
+the job with its COLMAP grandchildren. The job process is tied to the API process as COLMAP's are to
+it (``lifeline.die_with_parent``): an API killed with SIGKILL, which can end nothing, takes its job
+with it, instead of leaving it running alone on a journey the next API start requeues and runs
+again. The queue is memory only, so on start (and every half ``stale_after_s``) the database is
+swept: stale running journeys are requeued, queued ones submitted (and work dirs of runs no longer
+running deleted).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import signal
 import threading
 
 from app import logs
+from app.pipeline.colmap.lifeline import die_with_parent
 from app.service.jobs import state
 from app.service.db.session import session_scope
 from app.service.jobs.sweep import sweep_work
@@ -31,7 +35,11 @@ def _exit_on_signal(signum: int, _frame) -> None:
     raise SystemExit(128 + signum)
 
 
-def _child_main(journey_id: str, settings: Settings) -> None:
+def _child_main(journey_id: str, settings: Settings, api_pid: int) -> None:
+    # First: an API killed from now on must not leave this process behind (killed before, it is
+    # seen here as a changed parent). The signal comes when the spawning *thread* ends; that is
+    # the dispatcher thread, which outlives the job (it joins it; ``stop`` ends the job first).
+    die_with_parent(api_pid)
     os.setpgid(0, 0)
     signal.signal(signal.SIGTERM, _exit_on_signal)
     logs.configure(settings.log_level)
@@ -113,7 +121,8 @@ class EmbeddedWorker:
                 return
             with self._lock:
                 self._pending.discard(journey_id)
-            self._child = ctx.Process(target=_child_main, args=(journey_id, self.settings),
+            self._child = ctx.Process(target=_child_main,
+                                      args=(journey_id, self.settings, os.getpid()),
                                       name=f"signmap-job-{journey_id}")
             self._child.start()
             self._child.join()
@@ -122,6 +131,11 @@ class EmbeddedWorker:
                 log.log(logging.INFO if self._stop.is_set() else logging.ERROR,
                         "journey %s: job process ended with exit code %s", journey_id,
                         self._child.exitcode)
-                with session_scope(self.settings.effective_database_url) as session:
-                    state.abandon(session, journey_id)
+                try:
+                    with session_scope(self.settings.effective_database_url) as session:
+                        state.abandon(session, journey_id)
+                except Exception:
+                    # The database is down or read-only (what likely ended the job): the loop
+                    # must outlive it; the sweep requeues the journey once it is stale.
+                    log.exception("journey %s: could not be requeued now", journey_id)
             self._child = None
