@@ -41,6 +41,17 @@ class Principal:
         return self.role == "admin" or (self.key_id is not None and self.key_id == owner_key_id)
 
 
+def wrong_role_hint(role: str, roles: tuple[str, ...]) -> str:
+    """What a key refused for its role (403) should use instead, to follow the refusal's detail;
+    "" where the refusal says it all. A fleet key is refused the map by design
+    (docs/decisions/fleet-key-map.md): its own journeys' signs are its to read, the map is not."""
+    if role == "fleet" and "reader" in roles and "fleet" not in roles:
+        return ("; a fleet key reads only its own journeys (a journey's signs: "
+                "GET /api/v1/journeys/{id}/signs). To read the map, use a reader key: an operator "
+                "makes one with `signmap keys create --role reader`")
+    return ""
+
+
 def key_sha256(key: str) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
 

@@ -13,7 +13,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
-from app.service.auth import FailureThrottle, Principal, RevokedKey, lookup_key
+from app.service.auth import (FailureThrottle, Principal, RevokedKey, lookup_key,
+                              wrong_role_hint)
 from app.service.db.session import new_session
 from app.settings import Settings
 
@@ -123,7 +124,8 @@ def require(*roles: str) -> Callable[..., Principal]:
     def dependency(principal: Annotated[Principal, Depends(current_principal)]) -> Principal:
         if principal.role != "admin" and principal.role not in roles:
             raise HTTPException(status.HTTP_403_FORBIDDEN,
-                                f"this call needs {_roles_phrase(roles)}, not {principal.role}")
+                                f"this call needs {_roles_phrase(roles)}, not {principal.role}"
+                                + wrong_role_hint(principal.role, roles))
         return principal
 
     return dependency

@@ -16,8 +16,8 @@ from fastapi.templating import Jinja2Templates
 
 from app.service import storage
 from app.service.admin import data, media
-from app.service.admin.session import (COOKIE, DashboardSession, cookie_args, current_session,
-                                       sign_in, sign_out)
+from app.service.admin.session import (DashboardSession, cookie_args, current_session,
+                                       deletion_args, sign_in, sign_out)
 from app.service.api.routes import journeys as journey_routes
 from app.service.api.routes import map as map_routes
 from app.service.api.routes import tiles as tile_routes
@@ -35,10 +35,21 @@ SignedIn = Annotated[DashboardSession, Depends(current_session)]
 
 def _same_origin(request: Request) -> None:
     """Actions are form posts; SameSite=strict already keeps other sites' posts cookieless, and a
-    foreign Origin is refused as well."""
-    origin = request.headers.get("origin")
-    if origin and urlsplit(origin).netloc != request.url.netloc:
-        raise HTTPException(403, "cross-origin request refused")
+    post from another origin is refused as well: by its Origin, or by its Referer when it has no
+    Origin (browsers that send none). ``Origin: null`` (a sandboxed or privacy-stripped context)
+    is refused too.
+
+    A post with neither header is let through: browsers send Origin on every POST, so such a
+    post comes from a script or tool, not from a page a signed-in operator visits, which is what
+    forging needs; refusing it would stop nothing forged and break scripted use."""
+    for header in ("origin", "referer"):
+        value = request.headers.get(header)
+        if value is not None:
+            if urlsplit(value).netloc != request.url.netloc:
+                raise HTTPException(403, f"refused: this form was posted from another site "
+                                         f"({header.title()} is not {request.url.netloc}); "
+                                         f"post it from the dashboard's own page")
+            return
 
 
 def _page(request: Request, name: str, status_code: int = 200, **context) -> HTMLResponse:
@@ -78,7 +89,7 @@ def logout(request: Request, signed_in: SignedIn, session: SessionDep) -> Respon
     _same_origin(request)
     sign_out(session, signed_in.token_sha256)
     response = RedirectResponse("/admin/login", status_code=303)
-    response.delete_cookie(COOKIE, path="/admin")
+    response.delete_cookie(**deletion_args(request))
     return response
 
 

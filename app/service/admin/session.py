@@ -79,5 +79,15 @@ def sign_out(session: Session, token_sha256: str) -> None:
 
 
 def cookie_args(request: Request, settings: Settings) -> dict:
+    return dict(**_attributes(request), max_age=settings.admin_session_max_age_s)
+
+
+def deletion_args(request: Request) -> dict:
+    """``Response.delete_cookie``'s arguments: the cookie's own attributes, as its deletion
+    would otherwise go out with Starlette's SameSite=lax."""
+    return _attributes(request)
+
+
+def _attributes(request: Request) -> dict:
     return dict(key=COOKIE, httponly=True, samesite="strict", path="/admin",
-                secure=request.url.scheme == "https", max_age=settings.admin_session_max_age_s)
+                secure=request.url.scheme == "https")

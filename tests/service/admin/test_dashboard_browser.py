@@ -82,6 +82,10 @@ def test_operator_session(browser, server):
     running = add_journey(settings, "running", progress=0.2, stage="ego-motion")
     failed = add_journey(settings, "failed", error="no turn found in the journey")
     page = browser.new_page(viewport={"width": 1400, "height": 900})
+    # Whatever the Content-Security-Policy refuses on any page below (app/service/admin/headers.py)
+    blocked = []
+    page.on("console", lambda m: blocked.append(m.text)
+            if "Content Security Policy" in m.text else None)
     page.goto(f"{base}/admin/login")
     page.fill("input[name=key]", ADMIN_KEY)
     page.click("button[type=submit]")
@@ -92,8 +96,10 @@ def test_operator_session(browser, server):
     assert fill.evaluate("e => parseFloat(e.style.width)") == 20.0
     shot(page, "journeys-before")
     set_progress(settings, running, 0.8, "triangulate")
+    # Predicates are functions, not expressions: Playwright evals an expression in the page,
+    # which the dashboard's Content-Security-Policy (no 'unsafe-eval') refuses.
     page.wait_for_function(
-        f"""document.querySelector('tr[data-id="{running}"] .fill').style.width === '80%'""",
+        f"""() => document.querySelector('tr[data-id="{running}"] .fill').style.width === '80%'""",
         timeout=10_000)
     assert page.locator(f'tr[data-id="{running}"] .stage').inner_text() == "triangulate"
     shot(page, "journeys-progress")
@@ -105,12 +111,21 @@ def test_operator_session(browser, server):
     with session_scope(settings.effective_database_url) as session:
         assert session.get(JourneyRow, failed).status == "queued"
 
+    # Deleting asks first (static/confirm.js, no inline handler): dismissed, nothing is posted.
+    asked = []
+    page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.dismiss()))
+    page.click(f'tr[data-id="{done}"] button.delete')
+    assert asked == [f"Delete journey {done[:8]} and its signs?"]
+    assert page.locator(f'tr[data-id="{done}"]').count() == 1
+    with session_scope(settings.effective_database_url) as session:
+        assert session.get(JourneyRow, done).status == "done"
+
     # The journey page: GPS track and both signs on its map, crops of every observation.
     page.goto(f"{base}/admin/journeys/{done}")
     page.wait_for_selector(".journey-sign")
     assert page.locator(".journey-sign").count() == 2
     assert page.locator(".gps-track").count() == 1
-    page.wait_for_function("[...document.querySelectorAll('.crops img')]"
+    page.wait_for_function("() => [...document.querySelectorAll('.crops img')]"
                            ".every(i => i.complete && i.naturalWidth > 0)", timeout=10_000)
     assert page.locator(".crops img").count() == 4
     shot(page, "journey")
@@ -122,8 +137,9 @@ def test_operator_session(browser, server):
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.on("response", lambda r: tiles.append(r) if ".mvt" in r.url else None)
     page.goto(f"{base}/admin/map")
-    page.wait_for_function("document.getElementById('map-status').textContent.includes('in view')",
-                           timeout=10_000)
+    page.wait_for_function(
+        "() => document.getElementById('map-status').textContent.includes('in view')",
+        timeout=10_000)
     assert tiles and all(r.status == 200 for r in tiles)
     assert all("/admin/api/tiles/17/" in r.url for r in tiles)
     answer = httpx.get(f"{base}/api/v1/signs", headers=auth(ADMIN_KEY),
@@ -146,12 +162,13 @@ def test_operator_session(browser, server):
     for _ in range(6):
         page.locator(".leaflet-control-zoom-out").click()
         page.wait_for_timeout(300)
-    page.wait_for_function("document.getElementById('map-status').textContent.includes('cluster')",
-                           timeout=10_000)
+    page.wait_for_function(
+        "() => document.getElementById('map-status').textContent.includes('cluster')",
+        timeout=10_000)
     # A loaded machine (on CI) still showed 3 clusters from an intermediate zoom here: wait for
     # the last zoom's tiles to be drawn rather than for a fixed time. A cluster at a tile edge is
     # drawn by both tiles: the status counts it once.
-    page.wait_for_function("document.getElementById('map-status').textContent"
+    page.wait_for_function("() => document.getElementById('map-status').textContent"
                            " === '0 signs in view and 1 cluster (zoom in)'", timeout=10_000)
     assert page.locator(".sign-marker").count() == 0
     assert 1 <= page.locator(".sign-cluster").count() <= 4
@@ -161,4 +178,5 @@ def test_operator_session(browser, server):
     page.goto(f"{base}/admin/cameras")
     assert page.locator("svg.fx-chart polyline").count() == 1
     shot(page, "cameras")
+    assert blocked == []
     page.close()
