@@ -9,7 +9,7 @@ from pathlib import Path
 from bench.corpus import report as cr
 from bench.corpus.run import (CLOCK_ERROR_MAX_S, bundle_digest, clock_error_of, read_jsonl,
                               run_corpus)
-from tests.bench.test_corpus import _fake_corpus
+from tests.bench.corpus.test_corpus import _fake_corpus
 
 
 def test_a_journeys_clock_error_is_whole_seconds_never_zero_and_follows_its_name():
