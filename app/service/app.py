@@ -8,7 +8,9 @@ import errno
 import logging
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy import text
 from sqlalchemy.exc import OperationalError, SQLAlchemyError
@@ -19,7 +21,7 @@ from app.service.api.routes import journeys, tiles
 from app.service.api.routes import map as map_routes
 from app.service.db.session import session_scope, write_refusal
 from app.service.jobs.queue import JobQueue, local_queue
-from app.service.api.schemas import ErrorOut
+from app.service.api.schemas import ErrorOut, echoed_id
 from app.service.storage import make_store
 from app.service.jobs.sweep import Sweeper
 from app.settings import Settings
@@ -72,6 +74,14 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
         app.include_router(routes.router)
     mount_admin(app)
     app.add_middleware(_JsonErrors)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI's own 422 sends each invalid value back whole ("input"): a 60 KB query parameter
+        # came back as 60 KB. Cut what is echoed, as the service's own messages do.
+        errors = [{**e, "input": echoed_id(str(e["input"]))} if "input" in e else e
+                  for e in exc.errors()]
+        return JSONResponse({"detail": jsonable_encoder(errors)}, 422)
 
     @app.get("/api/v1/health", summary="Liveness and database check (no key needed)",
              description="ok only when the database answers a read and takes a write.",

@@ -99,3 +99,17 @@ def test_a_403_names_each_role_once_with_its_article(service):
     response = client.get("/api/v1/journeys", headers=auth(stack.key("reader")))
     assert response.status_code == 403
     assert response.json()["detail"] == "this call needs a fleet or admin key, not reader"
+
+
+@pytest.mark.parametrize("url", [
+    "/api/v1/signs?bbox=1,2,3,4&limit=" + "x" * 60_000,
+    "/api/v1/tiles/1/2/" + "3" * 60_000 + ".mvt",
+])
+def test_fastapis_own_422_cuts_the_value_it_echoes(tmp_path, url):
+    stack = sqlite_stack(tmp_path / "data")
+    with stack.client() as client:
+        answer = client.get(url, headers=auth(stack.key("reader")))
+    assert answer.status_code == 422
+    assert len(answer.content) < 1000  # was 60 KB
+    (error,) = answer.json()["detail"]
+    assert len(error["input"]) == MAX_ECHOED_ID_CHARS and error["loc"][0] in ("query", "path")
