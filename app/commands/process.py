@@ -36,7 +36,7 @@ PACK_DESCRIPTION = ("Makes the upload bundle (docs/journey-format.md, section 1a
                     "checked as the service checks an upload.")
 
 
-def _video_options(p, *, camera_id_default: str) -> None:
+def _video_options(p) -> None:
     p.add_argument("--gps", default=None, metavar="LOG",
                    help="the GPS log of a video: .nmea (or .nma/.log/.txt: NMEA RMC+GGA), .gpx, "
                    "or .csv (timestamp_s from the video's first frame); not needed when the video "
@@ -44,7 +44,7 @@ def _video_options(p, *, camera_id_default: str) -> None:
     p.add_argument("--detections", default=None, metavar="CSV",
                    help="sign detections of a video, detections.csv with `frame` the decoded "
                    "frame's 0-based index as six digits")
-    p.add_argument("--camera-id", default=camera_id_default,
+    p.add_argument("--camera-id", default="dashcam",
                    help="the physical camera (journeys of one camera share its calibration; "
                    "default: %(default)s)")
     p.add_argument("--gps-time-offset", type=float, default=None, metavar="SECONDS",
@@ -72,7 +72,7 @@ def add_parsers(sub) -> None:
                    help="keep the intermediate files (extracted frames, reconstructions) in this "
                    "directory (default: a temporary one, deleted at the end)")
     p.add_argument("--verbose", action="store_true", help="also show COLMAP's own log")
-    _video_options(p, camera_id_default="dashcam")
+    _video_options(p)
     p.set_defaults(func=run_process)
 
     p = sub.add_parser("pack", description=PACK_DESCRIPTION, epilog=EXIT_CODES_HELP,
@@ -80,7 +80,7 @@ def add_parsers(sub) -> None:
     p.add_argument("video", help="the recording: .mp4, .mov or .mkv")
     p.add_argument("--out", default="journey.zip", help="the bundle to write (default: %(default)s)")
     p.add_argument("--vehicle-id", default=None, help="the vehicle, when known")
-    _video_options(p, camera_id_default="dashcam")
+    _video_options(p)
     p.set_defaults(func=run_pack)
 
 
