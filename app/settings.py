@@ -11,6 +11,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from app.fusion.config import FusionConfig
 from app.pipeline.config import BundleLimits, PipelineConfig
+from app.pipeline.detect.model import DetectorConfig
 
 
 class Settings(BaseSettings):
@@ -70,6 +71,8 @@ class Settings(BaseSettings):
     broker_visibility_timeout_s: int = Field(
         6 * 3600, description="Redis redelivers an unacknowledged job after this; longer than a job")
     pipeline: PipelineConfig = PipelineConfig()
+    # Sign detector for bundles without detections.csv (SIGNMAP_DETECTOR__MODEL=/path/model.onnx).
+    detector: DetectorConfig = DetectorConfig()
 
     # Map fusion (see docs/service.md, "Map fusion").
     fusion: FusionConfig = FusionConfig()

@@ -165,6 +165,7 @@ def run_process(args) -> int:
     from app.commands.process_report import _progress_printer, report, stage_summary
     from app.geojson import feature_collection, journey_sign_features
     from app.pipeline.bundle import read_bundle
+    from app.pipeline.detect import apply_detector, bundle_has_detections
     from app.pipeline.run import known_camera_used, process_journey
     from app.pipeline.types import BundleError, CameraModel, NoTurnError, PipelineError
     from app.settings import Settings
@@ -196,8 +197,11 @@ def run_process(args) -> int:
         if params is not None:
             known = CameraModel.from_params(journey.image_width, journey.image_height, params)
         try:
+            printer = _progress_printer()
+            journey = apply_detector(journey, settings.detector, bundle_has_detections(bundle),
+                                     progress=printer)
             result = process_journey(journey, settings.pipeline, workdir / "work",
-                                     known_camera=known, progress=_progress_printer(),
+                                     known_camera=known, progress=printer,
                                      verbose=args.verbose)
         except NoTurnError as exc:
             # The failing stage's report ends in the service's advice; this command has its own.

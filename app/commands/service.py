@@ -58,6 +58,7 @@ def serve(args: argparse.Namespace) -> int:
             # The embedded default must work out of the box; PostgreSQL is migrated by `db upgrade`.
             upgrade(settings.effective_database_url)
         startup.check_database(settings.effective_database_url)
+        startup.check_detector(settings)  # before uvicorn: one line, not a lifespan traceback
     except startup.StartupError as exc:
         raise SystemExit(f"signmap serve: {exc}") from None
     uvicorn.run(create_service_app(settings), host=args.host, port=args.port, log_config=None)

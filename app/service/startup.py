@@ -13,6 +13,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import create_engine, pool
 from sqlalchemy.engine import make_url
 
+from app.pipeline.detect.model import DetectorError, load_detector
 from app.service.db.session import REPO_ROOT, write_refusal
 from app.settings import Settings
 
@@ -87,8 +88,19 @@ def check_database_writable(url: str, timeout_s: float = 5.0) -> None:
         raise StartupError(f"database {safe_url(url)} accepts no writes: {refusal}")
 
 
+def check_detector(settings: Settings) -> None:
+    """The configured sign detector (if any) loads and has an output layout it can decode."""
+    if settings.detector.model is None:
+        return
+    try:
+        load_detector(settings.detector)
+    except DetectorError as exc:
+        raise StartupError(str(exc)) from None
+
+
 def check(settings: Settings) -> None:
     """Every startup check; raises StartupError on the first failure."""
     check_data_dir(settings.data_dir)
     check_database(settings.effective_database_url)
     check_database_writable(settings.effective_database_url)
+    check_detector(settings)

@@ -8,6 +8,7 @@ import threading
 import time
 
 from app.pipeline.bundle import read_bundle
+from app.pipeline.detect import apply_detector, bundle_has_detections
 from app.pipeline.run import process_journey
 from app.pipeline.types import PipelineError, StageReport
 from app.service import storage
@@ -85,6 +86,9 @@ def run_journey(journey_id: str, settings: Settings) -> None:
                               decode_images=True, progress=lambda fraction: progress(
                                   "extract", 0.0, f"video {100 * fraction:.0f} % decoded"))
         progress("extract", 0.0, f"{len(journey.frames)} frames")
+        stage = "detect"
+        journey = apply_detector(journey, settings.detector, bundle_has_detections(bundle),
+                                 progress=progress)
         stage = "pipeline"
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",
                                  known_camera=known_camera, progress=progress)

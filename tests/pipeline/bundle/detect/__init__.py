@@ -1,0 +1,2 @@
+"""Tests of the ONNX sign detector (issue 69): the three output layouts, letterbox and mapping
+back to original pixels, NMS, class filter, refused models, a journey detected and tracked."""
