@@ -12,9 +12,12 @@ compressed, so a bundle that inflates many times over is padding. Any failure is
 from __future__ import annotations
 
 import io
+import os
 import re
+import shutil
 import stat
 import struct
+import tempfile
 import zipfile
 import zlib
 from pathlib import Path
@@ -111,6 +114,20 @@ class BundleZip:
         except _ZIP_ERRORS as exc:
             raise _corrupt(name, exc) from None
         return io.BufferedReader(_Member(name, stream), 1 << 16)
+
+    def extract(self, name: str, out: Path) -> Path:
+        """Write the entry to ``out`` in chunks (a video does not fit in memory), whole or not at
+        all: it appears under its name only once complete. Callers check the declared size
+        first."""
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, part = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part")
+        try:
+            with os.fdopen(fd, "wb") as dst, self.open(name) as src:
+                shutil.copyfileobj(src, dst, _CHUNK_BYTES)
+            os.replace(part, out)
+        finally:
+            Path(part).unlink(missing_ok=True)
+        return out
 
     def read(self, name: str, max_bytes: int | None = None) -> bytes:
         """The entry's bytes, stopping as soon as any size limit is passed."""

@@ -112,11 +112,7 @@ def _video_frame(data_dir: Path, bz, video: str, sha256: str, frame_id: str):
     videos = cache_dir(data_dir) / "videos"
     path = videos / f"{sha256}{Path(video).suffix.lower()}"
     if not path.exists():
-        videos.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=videos)
-        with os.fdopen(fd, "wb") as out, bz.open(video) as src:
-            shutil.copyfileobj(src, out, 1 << 20)
-        os.replace(tmp, path)
+        bz.extract(video, path)
         by_use = sorted(videos.iterdir(), key=lambda p: p.stat().st_mtime, reverse=True)
         for old in by_use[KEEP_FETCHED:]:
             old.unlink(missing_ok=True)

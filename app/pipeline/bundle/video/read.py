@@ -157,14 +157,6 @@ def check_video(bz: BundleZip, manifest: Manifest, name: str, limits: BundleLimi
     return VideoCheck(header, log, detections)
 
 
-def _extract(bz: BundleZip, name: str, out: Path) -> Path:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with bz.open(name) as src, open(out, "wb") as dst:
-        while chunk := src.read(1 << 20):
-            dst.write(chunk)
-    return out
-
-
 def _offset(prior: _Prior, motion: ImageMotion, log: GpsLog) -> tuple[float, list[str]]:
     if prior.search_s == 0.0:
         return prior.offset_s, [f"clock offset: {prior.how}"]
@@ -192,7 +184,7 @@ def read_video(bz: BundleZip, manifest: Manifest, name: str, extract_dir: Path,
                limits: BundleLimits, progress: Callable[[float], None] | None = None) -> Journey:
     """Check, decode and time the video bundle's frames into a Journey (frames under
     ``extract_dir/frames``)."""
-    video_path = _extract(bz, name, extract_dir / name)
+    video_path = bz.extract(name, extract_dir / name)
     check = check_video(bz, manifest, name, limits, video_path)
     header, log = check.header, check.gps
     embedded = log is None
@@ -260,7 +252,7 @@ def read_gps_log(bz: BundleZip, name: str, scratch: Path, limits: BundleLimits) 
         header = probe_video(fp, name, limits, decode_first=False)
     log = _gps_log(bz, header, limits)
     if log is None:
-        log = read_embedded_gps(_extract(bz, name, scratch / name), max_points=limits.max_gps_rows)
+        log = read_embedded_gps(bz.extract(name, scratch / name), max_points=limits.max_gps_rows)
     if log is None:
         raise BundleError(f"no GPS: {name} has no readable GPS track")
     return log
