@@ -246,7 +246,7 @@ def _validate(bz: BundleZip, limits: BundleLimits, decode: bool,
     bz.check_sizes({"manifest.json": MAX_MANIFEST_BYTES,
                     **{n: limits.max_member_bytes for n in tables},
                     **{name: limits.max_member_bytes for _, name in entries}})
-    manifest = parse_manifest(bz.read("manifest.json", MAX_MANIFEST_BYTES))
+    manifest = _manifest(bz)
     frame_ids = [stem for stem, _ in entries]
     with bz.open(entries[0][1]) as fp:
         width, height = _header_size(fp, entries[0][1].split("/", 1)[1], limits)
