@@ -206,16 +206,21 @@ def _course(t: np.ndarray, xy: np.ndarray) -> _Course:
 
 
 def _largest_turn_deg(course: _Course, t_from_s: float, t_to_s: float) -> float:
-    """Largest |course change| over TURN_WINDOW_S, at speed throughout, within the times."""
+    """Largest |course change| between two times at most TURN_WINDOW_S apart with the car at
+    speed between them, within the times: the course's range over each such span, not its
+    end-to-end change, which an S-bend (left, then right) nets to nearly nothing. A stop splits
+    the course into runs; a turn between two stops counts."""
     inside = (course.t_s >= t_from_s) & (course.t_s <= t_to_s)
     psi, fast = course.psi[inside], course.fast[inside]
-    n = min(int(round(TURN_WINDOW_S / STEP_S)), len(psi) - 1)
-    if n < 1:
-        return 0.0
-    slow = np.r_[0, np.cumsum(~fast)]
-    whole = (slow[n + 1:] - slow[:-n - 1]) == 0  # windows [i, i + n] all at speed
-    change = np.abs(psi[n:] - psi[:-n])[whole]
-    return float(np.degrees(change.max())) if len(change) else 0.0
+    n = int(round(TURN_WINDOW_S / STEP_S)) + 1
+    edges = np.flatnonzero(np.diff(np.r_[0, fast.astype(np.int8), 0]))
+    largest = 0.0
+    for start, stop in zip(edges[::2], edges[1::2]):  # runs of samples at speed
+        run = psi[start:stop]
+        if len(run) > 1:
+            spans = np.lib.stride_tricks.sliding_window_view(run, min(n, len(run)))
+            largest = max(largest, float(np.ptp(spans, axis=1).max()))
+    return float(np.degrees(largest))
 
 
 def _blurred_course(course: _Course, smooth_s: float) -> tuple[np.ndarray, np.ndarray]:

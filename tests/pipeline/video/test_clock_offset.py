@@ -36,12 +36,12 @@ def _drive(turns_deg=(90.0, -90.0), turn_at_s=(20.0, 45.0), turn_s=5.0, length_s
 
 
 def _journey(offset_s, rate_hz, noise_m, seed=0, turns_deg=(90.0, -90.0), turn_at_s=(20.0, 45.0),
-             video_s=55.0):
+             video_s=55.0, log_s=70.0):
     """A 10 fps video of ``video_s`` whose frame at video time t is at GPS time t + ``offset_s``:
     its image pairs (mid-times (K,), dx_px (K,), dt (K,)), and fixes (times (M,), xy (M, 2)) at
     ``rate_hz`` with white noise ``noise_m`` per axis."""
     rng = np.random.default_rng(seed)
-    t, psi, xy = _drive(turns_deg, turn_at_s)
+    t, psi, xy = _drive(turns_deg, turn_at_s, length_s=log_s)
     t_fix = np.arange(0.3, t[-1], 1.0 / rate_hz)
     fixes = np.column_stack([np.interp(t_fix, t, xy[:, k]) for k in (0, 1)])
     fixes += rng.normal(0.0, noise_m, fixes.shape)
@@ -75,6 +75,16 @@ def test_a_straight_road_keeps_the_prior():
     got = estimate_clock_offset(mid, dx, t_fix, fixes, prior_offset_s=0.0, dt_s=dt)
     assert got.offset_s is None and got.sigma_s is None
     assert "no turn" in got.reason
+
+
+def test_an_s_bend_in_a_short_clip_is_a_turn():
+    # Left 70 deg, then right 90 deg, in an 11 s log: the course ends 20 deg from where it began,
+    # but turned 90 deg within 10 s (a corpus journey's shape, c2000, once refused as "no turn").
+    mid, dx, dt, t_fix, fixes = _journey(1.0, 2, 0.05, turns_deg=(-70.0, 90.0),
+                                         turn_at_s=(3.0, 7.5), video_s=10.5, log_s=11.0)
+    got = estimate_clock_offset(mid, dx, t_fix, fixes, prior_offset_s=0.0, search_s=2.0, dt_s=dt)
+    assert got.offset_s is not None, got.reason
+    assert abs(got.offset_s - 1.0) < 0.1
 
 
 def test_one_turn_filmed_against_two_alike_is_ambiguous():
