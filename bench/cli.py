@@ -313,6 +313,33 @@ def _add_video_parser(bench_sub) -> None:
     g.set_defaults(func=run_video_command)
 
 
+def run_detector_command(args) -> int:
+    from bench.cost.detector_time import BenchError, run_detector_bench
+
+    try:
+        md = run_detector_bench(args.frames, args.out, args.size)
+    except BenchError as exc:
+        raise SystemExit(f"signmap bench detector: {exc}") from exc
+    print(md.read_text())
+    print(f"wrote {md}")
+    return 0
+
+
+def _add_detector_parser(bench_sub) -> None:
+    g = bench_sub.add_parser(
+        "detector", help="the sign detector's time per frame at 640 px on 2 threads",
+        description="Builds a convolutional ONNX detector of a realistic size (YOLOv8-like "
+        "output [1, 4+nc, 8400], random weights; needs the onnx package, a test extra) and runs "
+        "it through the worker's detector on JPEG frames; prints ms per frame for letterbox, "
+        "inference, decode + NMS and the whole, against reading the JPEG frame.")
+    g.add_argument("--frames", type=int, default=20, help="frames timed (default: %(default)s)")
+    g.add_argument("--size", choices=("1080p", "1242x375"), default="1080p",
+                   help="frame size (default: %(default)s)")
+    g.add_argument("--out", type=Path, default=argparse.SUPPRESS,
+                   help="where the markdown goes (default bench/results)")
+    g.set_defaults(func=run_detector_command)
+
+
 def _add_corpus_parser(bench_sub) -> None:
     c = bench_sub.add_parser("corpus", help="self-calibration and signs over a generated corpus",
                              description="Runs the pipeline on the journeys of a corpus written "
@@ -453,6 +480,7 @@ def add_parsers(sub) -> None:
     _add_gps_focal_parser(bench_sub)
     _add_pose_error_parser(bench_sub)
     _add_video_parser(bench_sub)
+    _add_detector_parser(bench_sub)
     _add_real_ego_parser(bench_sub)
     u = bench_sub.add_parser(
         "uncertainty", help="fit the sign-uncertainty knobs on a corpus run's tuning half",

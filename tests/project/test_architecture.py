@@ -49,6 +49,17 @@ def test_no_module_is_imported_in_a_cycle(monkeypatch):
     assert [c for c in cycles if len(c) > 1] == []
 
 
+def ignored_folders() -> set[Path]:
+    """The folders .gitignore names by their path (``bench/cache/``, where the benches and their
+    tests keep rendered journeys): generated, not code, so neither held nor counted as entries."""
+    lines = [line.strip() for line in (REPO / ".gitignore").read_text().splitlines()]
+    return {Path(line.strip("/")) for line in lines
+            if line.endswith("/") and "/" in line.strip("/") and "*" not in line}
+
+
+IGNORED = ignored_folders()
+
+
 def held_folders() -> list[Path]:
     """Every folder the size rule holds, found by walking the tree so that a new one is held too.
 
@@ -58,13 +69,15 @@ def held_folders() -> list[Path]:
     (app/service/admin/static and templates, bench/results). migrations/ is Alembic's script folder
     (``versions/`` of revisions, not a package), held only if it becomes a package. Under tests/
     every folder is a test folder and must be a package. ``__pycache__`` and hidden folders are
-    never held, nor counted as entries.
+    never held, nor counted as entries; nor are the folders .gitignore names by path
+    (``ignored_folders``).
     """
     held = []
     for top in (*PACKAGES, "migrations", "tests"):
         for folder in [REPO / top, *sorted(p for p in (REPO / top).rglob("*") if p.is_dir())]:
-            if any(part == "__pycache__" or part.startswith(".")
-                   for part in folder.relative_to(REPO).parts):
+            rel = folder.relative_to(REPO)
+            if any(part == "__pycache__" or part.startswith(".") for part in rel.parts) or any(
+                    rel == ignored or ignored in rel.parents for ignored in IGNORED):
                 continue
             package = (folder / "__init__.py").exists()
             code = top in PACKAGES and any(folder.glob("*.py"))
@@ -75,7 +88,8 @@ def held_folders() -> list[Path]:
 
 @pytest.mark.parametrize("folder", held_folders(), ids=str)
 def test_a_package_has_at_most_ten_entries_and_says_what_it_holds(folder):
-    entries = sorted(p.name for p in (REPO / folder).iterdir() if p.name != "__pycache__")
+    entries = sorted(p.name for p in (REPO / folder).iterdir()
+                     if p.name != "__pycache__" and p.relative_to(REPO) not in IGNORED)
     assert len(entries) <= MAX_ENTRIES, f"{folder}: {len(entries)} entries, group them {entries}"
     init = REPO / folder / "__init__.py"
     assert init.exists(), f"{folder} is not a package (no __init__.py)"

@@ -6,6 +6,9 @@ Supported outputs (the first output of the model, batch 1):
 * YOLOv5/v7 ``[1, N, 5 + nc]``: cx, cy, w, h, objectness, then class scores (score = obj * cls);
 * NMS built in ``[1, N, 6]``: x1, y1, x2, y2, score, class.
 
+The layout is told from the shape; a single-class YOLOv5 export is ``[1, N, 6]`` too and is read
+as NMS built in unless ``DetectorConfig.layout`` says "v5".
+
 Boxes are in the letterboxed input's pixels (ultralytics: edges at integers); they are mapped back
 to the original image and shifted by -0.5 to the OpenCV convention of ``app.pipeline.types``.
 """
@@ -16,6 +19,7 @@ import ast
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -40,6 +44,9 @@ class DetectorConfig(BaseModel):
                                                            "model's own")
     classes: list[str] | None = Field(None, description="keep only these classes; unset = all")
     iou_nms: float = Field(0.45, gt=0.0, le=1.0, description="per-class NMS IoU threshold")
+    layout: Literal["auto", "v8", "v5", "nms"] = Field(
+        "auto", description="output layout; auto: from its shape ([1, N, 6] is NMS built in; a "
+                            "single-class YOLOv5 export needs v5)")
 
 
 @dataclass(frozen=True)
@@ -93,11 +100,16 @@ def letterbox(bgr: np.ndarray, size: int) -> tuple[np.ndarray, float, int, int]:
     return img, r, left, top
 
 
-def _layout(shape: tuple) -> str | None:
-    """"v8", "v5" or "nms" for an output shape (ints, or None / names for dynamic axes)."""
+def _layout(shape: tuple, forced: str = "auto") -> str | None:
+    """"v8", "v5" or "nms" for an output shape (ints, or None / names for dynamic axes): the
+    ``forced`` one if the shape can be of it, else None; with "auto" the one the shape says."""
     if len(shape) != 3 or shape[0] not in (1, None) and not isinstance(shape[0], str):
         return None
     a, b = shape[1], shape[2]
+    if forced != "auto":
+        fits = {"nms": b == 6, "v5": isinstance(b, int) and b > 5,
+                "v8": isinstance(a, int) and a > 4}
+        return forced if fits[forced] else None
     if b == 6:
         return "nms"
     if isinstance(b, int) and b > 5 and not (isinstance(a, int) and a > 4 and a < b):
@@ -105,6 +117,12 @@ def _layout(shape: tuple) -> str | None:
     if isinstance(a, int) and a > 4:
         return "v8"
     return None
+
+
+_SHAPES = {"v8": "[1, 4+nc, N] (YOLOv8/v11, layout v8)",
+           "v5": "[1, N, 5+nc] (YOLOv5/v7, layout v5)",
+           "nms": "[1, N, 6] (NMS built in, layout nms)"}
+_SHAPES["auto"] = ", ".join(_SHAPES.values())
 
 
 class Detector:
@@ -125,19 +143,30 @@ class Detector:
             return self.labels[index]
         return f"class{index}"
 
-    def _raw(self, bgr: np.ndarray) -> tuple[np.ndarray, float, int, int]:
+    def prepare(self, bgr: np.ndarray) -> tuple[np.ndarray, float, int, int]:
+        """The model's input for ``bgr`` (letterboxed, RGB, 0-1, [1, 3, size, size] float32) and
+        the letterbox's scale, left and top padding."""
+        if bgr.ndim == 2:
+            bgr = cv2.cvtColor(bgr, cv2.COLOR_GRAY2BGR)
         img, r, left, top = letterbox(bgr, self.input_size)
         blob = np.ascontiguousarray(img[:, :, ::-1].transpose(2, 0, 1)[None], dtype=np.float32)
         blob /= 255.0
-        out = np.asarray(self.session.run(None, {self.input_name: blob})[0])
-        return out, r, left, top
+        return blob, r, left, top
+
+    def infer(self, blob: np.ndarray) -> np.ndarray:
+        """The model's first output for ``blob``."""
+        return np.asarray(self.session.run(None, {self.input_name: blob})[0])
+
+    def _raw(self, bgr: np.ndarray) -> tuple[np.ndarray, float, int, int]:
+        blob, r, left, top = self.prepare(bgr)
+        return self.infer(blob), r, left, top
 
     def decode(self, out: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(N, 4) x1 y1 x2 y2 in input pixels, (N,) scores, (N,) class indices."""
-        layout = _layout(tuple(out.shape))
+        layout = _layout(tuple(out.shape), self.config.layout)
         if layout is None or out.shape[0] != 1:
             raise DetectorError(f"model output of shape {list(out.shape)} is none of "
-                                "[1, 4+nc, N], [1, N, 5+nc], [1, N, 6]")
+                                f"{_SHAPES[self.config.layout]}")
         out = out[0].astype(np.float64)
         if layout == "nms":
             return out[:, :4], out[:, 4], out[:, 5].round().astype(int)
@@ -154,16 +183,22 @@ class Detector:
 
     def detect(self, bgr: np.ndarray) -> list[Box]:
         """Boxes in ``bgr`` (an OpenCV image), in its OpenCV pixels, best first per class."""
-        if bgr.ndim == 2:
-            bgr = cv2.cvtColor(bgr, cv2.COLOR_GRAY2BGR)
-        height, width = bgr.shape[:2]
         out, r, left, top = self._raw(bgr)
+        return self.boxes(out, r, left, top, bgr.shape[1], bgr.shape[0])
+
+    def boxes(self, out: np.ndarray, r: float, left: int, top: int, width: int,
+              height: int) -> list[Box]:
+        """The model's output ``out`` for a ``width`` x ``height`` image letterboxed with scale
+        ``r`` and padding ``left``, ``top``: its boxes after the score, class and NMS filters, in
+        the image's OpenCV pixels."""
         boxes, scores, cls = self.decode(out)
         keep = np.isfinite(boxes).all(axis=1) & (scores >= self.config.score_min)
+        boxes, scores, cls = boxes[keep], scores[keep], cls[keep]
+        # Named after the score filter: a YOLOv8 output has 8400 rows at 640 px.
         names = np.array([self.label(int(c)) for c in cls], dtype=object)
         if self.config.classes is not None:
-            keep &= np.isin(names, list(self.config.classes))
-        boxes, scores, names = boxes[keep], scores[keep], names[keep]
+            wanted = np.isin(names, list(self.config.classes))
+            boxes, scores, names = boxes[wanted], scores[wanted], names[wanted]
         # Input pixels (edges at integers) -> original pixels -> OpenCV centres.
         boxes = (boxes - [left, top, left, top]) / r - 0.5
         boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(-0.5, width - 0.5)
@@ -195,6 +230,8 @@ def _sha256(path: Path) -> str:
 def load_detector(config: DetectorConfig) -> Detector:
     """The detector ``config`` names; DetectorError (one line) when it cannot be loaded or its
     output is of no supported layout."""
+    # Called once per journey (apply_detector): 0.1-0.25 s for a YOLOv8n-sized model (signmap bench
+    # detector), small beside the journey's frames; a worker could keep one if that changes.
     if config.model is None:
         raise DetectorError("no detector model configured")
     path = Path(config.model)
@@ -238,8 +275,7 @@ def load_detector(config: DetectorConfig) -> Detector:
         out, *_ = detector._raw(np.full((size, size, 3), PAD_VALUE, np.uint8))
     except Exception as exc:
         raise DetectorError(f"detector model {path} fails to run: {_one_line(exc)}") from None
-    if _layout(tuple(out.shape)) is None or out.shape[0] != 1:
+    if _layout(tuple(out.shape), config.layout) is None or out.shape[0] != 1:
         raise DetectorError(f"detector model {path} outputs shape {list(out.shape)}, none of "
-                            "[1, 4+nc, N] (YOLOv8/v11), [1, N, 5+nc] (YOLOv5/v7), [1, N, 6] "
-                            "(NMS built in)")
+                            f"{_SHAPES[config.layout]}")
     return detector

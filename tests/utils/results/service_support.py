@@ -74,6 +74,19 @@ def sign_errors_m(features: list[dict], truth: dict) -> dict[str, float]:
             for track, xyz in signs_enu(features, truth).items()}
 
 
+def nearest_sign_errors_m(features: list[dict], truth: dict) -> dict[str, float]:
+    """Distance (m) from each feature to the nearest true sign of its class, keyed by its track id:
+    for tracks the pipeline made itself (``auto-N``), which name no true sign."""
+    true = signs_enu([{"properties": {"track_id": str(s["track_id"])},
+                       "geometry": {"coordinates": [s["lon"], s["lat"], s["alt_m"]]}}
+                      for s in truth["signs"]], truth)
+    cls = {str(s["track_id"]): s["class"] for s in truth["signs"]}
+    by_track = {f["properties"]["track_id"]: f["properties"]["class"] for f in features}
+    return {track: min((float(np.linalg.norm(xyz - true[t])) for t in true
+                        if cls[t] == by_track[track]), default=float("inf"))
+            for track, xyz in signs_enu(features, truth).items()}
+
+
 def truth_bbox(truth: dict, margin_deg: float = 1e-3) -> str:
     lats = [s["lat"] for s in truth["signs"]]
     lons = [s["lon"] for s in truth["signs"]]

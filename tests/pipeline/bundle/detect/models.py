@@ -11,9 +11,19 @@ from onnx import TensorProto, helper, numpy_helper
 
 SIZE = 640
 WIDTH, HEIGHT = 1242, 375
-# Letterbox of 1242x375 into 640: scale, left and top padding (ultralytics' rounding).
-SCALE = min(SIZE / HEIGHT, SIZE / WIDTH)
-LEFT, TOP = 0, int(round((SIZE - round(HEIGHT * SCALE)) / 2 - 0.1))
+
+
+def letterbox_geometry(width: int, height: int, size: int = SIZE) -> tuple[float, int, int]:
+    """Scale, left and top padding of a width x height image letterboxed into size x size
+    (ultralytics' rounding)."""
+    scale = min(size / height, size / width)
+    left = int(round((size - round(width * scale)) / 2 - 0.1))
+    top = int(round((size - round(height * scale)) / 2 - 0.1))
+    return scale, left, top
+
+
+# Letterbox of 1242x375 into 640.
+SCALE, LEFT, TOP = letterbox_geometry(WIDTH, HEIGHT)
 
 # (x1, y1, x2, y2 in original OpenCV pixels, score, class index)
 STOP = ((100.0, 50.0, 160.0, 110.0), 0.9, 0)
@@ -24,11 +34,13 @@ BOXES = (STOP, STOP_OVERLAP, YIELD, YIELD_WEAK)
 NC = 2
 
 
-def to_input(box) -> np.ndarray:
-    """Original OpenCV pixels -> letterboxed input pixels (edges at integers)."""
+def to_input(box, geometry: tuple[float, int, int] = (SCALE, LEFT, TOP)) -> np.ndarray:
+    """Original OpenCV pixels -> letterboxed input pixels (edges at integers); ``geometry`` is
+    ``letterbox_geometry``'s."""
+    scale, left, top = geometry
     x1, y1, x2, y2 = box
-    return np.array([(x1 + 0.5) * SCALE + LEFT, (y1 + 0.5) * SCALE + TOP,
-                     (x2 + 0.5) * SCALE + LEFT, (y2 + 0.5) * SCALE + TOP])
+    return np.array([(x1 + 0.5) * scale + left, (y1 + 0.5) * scale + top,
+                     (x2 + 0.5) * scale + left, (y2 + 0.5) * scale + top])
 
 
 def _cxcywh(box) -> np.ndarray:

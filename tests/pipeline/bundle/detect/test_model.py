@@ -8,7 +8,7 @@ import pytest
 from app.pipeline.detect import DetectorConfig, DetectorError, load_detector
 from app.pipeline.detect.model import letterbox, parse_names
 from tests.pipeline.bundle.detect.models import (HEIGHT, LEFT, SCALE, SIZE, STOP, TOP, WIDTH,
-                                                 YIELD, constant_model, output)
+                                                 YIELD, constant_model, output, to_input)
 
 IMAGE = np.random.default_rng(0).integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)
 
@@ -77,3 +77,20 @@ def test_bad_models_are_refused_in_one_line(tmp_path):
     assert "none of" in _refusal(DetectorConfig(model=tiny))
     assert "takes 640 px" in _refusal(DetectorConfig(model=constant_model(
         tmp_path / "v8.onnx", output("v8")), input_size=320))
+
+
+def test_a_single_class_yolov5_export_needs_its_layout_named(tmp_path):
+    # [1, N, 6] is NMS built in unless told: cx, cy, w, h, objectness, score of the one class.
+    box, score, _ = STOP
+    x1, y1, x2, y2 = to_input(box)
+    row = [(x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1, 0.5, 2 * score]
+    path = constant_model(tmp_path / "v5-one.onnx", np.array([[row]], np.float32))
+    as_v5 = load_detector(DetectorConfig(model=path, layout="v5")).detect(IMAGE)
+    assert [b.cls for b in as_v5] == ["class0"]
+    assert np.allclose(_coords(as_v5[0]), box, atol=0.02)
+    assert as_v5[0].score == pytest.approx(score, abs=1e-5)
+    guessed = load_detector(DetectorConfig(model=path)).detect(IMAGE)
+    assert not any(np.allclose(_coords(b), box, atol=1) for b in guessed)
+    # A layout the output cannot have is refused at load.
+    assert "layout nms" in _refusal(DetectorConfig(model=constant_model(
+        tmp_path / "v8.onnx", output("v8")), layout="nms"))
