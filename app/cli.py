@@ -1,6 +1,6 @@
 """``signmap`` command line: the pipeline locally, the synthetic generator, the service and the
 benchmarks. Each group of subcommands adds its own parsers from ``app.commands`` (``process``,
-``synth``, ``service``; ``bench.cli``); the exit statuses are ``app.commands.usage``'s.
+``synth``, ``service``, ``cameras``; ``bench.cli``); the exit statuses are ``app.commands.usage``'s.
 
 Only the group of the command being run builds its parsers: building them imports what their
 options need (the service's roles, the benches' stack), and ``signmap --help`` should not wait
@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from app.commands import process, service, synth
+from app.commands import cameras, process, service, synth
 from app.commands.usage import EXIT_CODES_HELP, HelpFormatter, show_help
 from bench import cli as bench_cli
 
@@ -22,7 +22,7 @@ DESCRIPTION = ("Signmap: 3D positions of traffic signs from journeys filmed by c
                "benchmarks. `signmap COMMAND --help` says more about each command.")
 
 # Each module's COMMANDS: {command: one-line help}; add_parsers(sub) adds them in full.
-GROUPS = (process, synth, service, bench_cli)
+GROUPS = (process, synth, service, cameras, bench_cli)
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

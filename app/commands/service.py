@@ -106,8 +106,9 @@ def db_upgrade(args: argparse.Namespace) -> int:
     return 0
 
 
-def _keys_database(command: str) -> str:
-    """The URL of the database `signmap keys COMMAND` works on, once it is found usable."""
+def usable_database(command: str) -> Settings:
+    """The settings of `signmap COMMAND` (e.g. "keys create"), once their database is found
+    usable (reachable and migrated; SQLite's data_dir writable)."""
     from app.service import startup
     from app.settings import Settings
 
@@ -117,8 +118,13 @@ def _keys_database(command: str) -> str:
             startup.check_data_dir(settings.data_dir)
         startup.check_database(settings.effective_database_url)
     except startup.StartupError as exc:
-        raise SystemExit(f"signmap keys {command}: {exc}") from None
-    return settings.effective_database_url
+        raise SystemExit(f"signmap {command}: {exc}") from None
+    return settings
+
+
+def _keys_database(command: str) -> str:
+    """The URL of the database `signmap keys COMMAND` works on, once it is found usable."""
+    return usable_database(f"keys {command}").effective_database_url
 
 
 def keys_create(args: argparse.Namespace) -> int:

@@ -17,7 +17,7 @@ from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
 from app.service import startup
 from app.service.admin import mount_admin
-from app.service.api.routes import journeys, tiles
+from app.service.api.routes import cameras, journeys, tiles
 from app.service.api.routes import map as map_routes
 from app.service.db.session import session_scope, write_refusal
 from app.service.jobs.queue import JobQueue, local_queue
@@ -35,6 +35,12 @@ Signmap maps traffic signs from journeys recorded by cheap car cameras.
 as one zip (`POST /api/v1/journeys`, multipart field `bundle`, format in the wire contract), then poll
 `GET /api/v1/journeys/{id}` until `status` is `done` or `failed` and fetch the journey's signs with
 `GET /api/v1/journeys/{id}/signs`. **Map readers** (`reader` keys) query `GET /api/v1/signs?bbox=`.
+
+A journey without a turn whose camera has no calibration yet waits for one (`status` `queued`,
+`stage` `waiting_for_camera`, a `message`): it resumes once a journey of the camera with a turn has
+self-calibrated, or once an **admin** registers the camera's calibration
+(`PUT /api/v1/cameras/{camera_id}/calibration`). `GET /api/v1/cameras/{camera_id}` shows a camera's
+calibration, its sigmas, epochs and waiting journeys.
 
 Every call takes `Authorization: Bearer <key>`; errors are JSON `{"detail": ...}`.
 """
@@ -70,7 +76,7 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
     app.state.settings = settings
     app.state.queue = queue
     app.state.store = make_store(settings)
-    for routes in (journeys, map_routes, tiles):
+    for routes in (journeys, map_routes, tiles, cameras):
         app.include_router(routes.router)
     mount_admin(app)
     app.add_middleware(_JsonErrors)

@@ -3,12 +3,12 @@
 For each backend (SQLite with the embedded worker; PostgreSQL + Redis + a Celery worker process)
 a real `signmap serve` is started on a fresh database holding a seeded map, and concurrent
 clients send a fixed number of requests: uploads (a few rendered journeys with a turn that really
-get processed, many small straight ones that are accepted and then fail fast in the job with "no
-turn", and re-uploads of the same bytes), map reads (a street and a city box), journey status polls
+get processed, many small straight ones that are accepted and then parked within seconds by the
+job, waiting for their camera (no turn, a camera nobody calibrated), and re-uploads of the same bytes), map reads (a street and a city box), journey status polls
 and health checks. Then, until every job has ended, the clients keep reading the map. Reported per kind
 of request: count, errors (5xx, unexpected status, connection errors), p50/p95/p99/max latency;
-and what became of every accepted upload, from the database and the job logs: each must end done
-or failed exactly once (one row, one attempt, one ending), re-uploads must name the same journey.
+and what became of every accepted upload, from the database and the job logs: each must end done,
+failed or waiting exactly once (one row, one attempt, one ending), re-uploads must name the same journey.
 Then the same clients send N distinct big uploads (40 MB by default) while the worker(s) run their
 jobs: uploads accepted per second, MB/s, latency per upload, and the same account of each upload.
 """
@@ -179,7 +179,7 @@ async def drain(service: Service, accepted: set[str], timeout_s: float, clients:
         while time.monotonic() - t0 < timeout_s:
             states = await asyncio.to_thread(journey_states,
                                              service.settings.effective_database_url, accepted)
-            if all(states.get(i) in ("done", "failed") for i in accepted):
+            if all(states.get(i) in ("done", "failed", "waiting") for i in accepted):
                 break
             await asyncio.sleep(1.0)
         ended.set()
@@ -294,7 +294,7 @@ def markdown(report: dict) -> str:
                   f"{run['loadavg'][1]} after. Accepted uploads: {j['accepted']} (queued again by a "
                   f"re-upload after failing: {j['requeued_by_reupload']}): done {j['done']} "
                   f"({j['n_signs_done']} signs), failed "
-                  f"{j['failed']}, lost {lost}; retried after a lost run (attempts > 1): "
+                  f"{j['failed']}, waiting for their camera {j.get('waiting', 0)}, lost {lost}; retried after a lost run (attempts > 1): "
                   f"{len(j['attempts_not_1'])}; "
                   f"not ended exactly once in the job logs: {len(j['ended_not_once'])}; duplicate "
                   f"rows: {j['duplicate_rows']}; re-uploads naming another journey: "
@@ -368,7 +368,8 @@ def add_parser(bench_sub) -> None:
     p.add_argument("--requests", type=int,
                    help="reads, status polls and health checks (default 400; quick 40)")
     p.add_argument("--uploads", type=int,
-                   help="new uploads that fail fast in the job (default 16; quick 3)")
+                   help="new uploads that the job parks within seconds, waiting for their camera "
+                        "(default 16; quick 3)")
     p.add_argument("--processed", type=int,
                    help="rendered journeys with a turn, really processed (default 2; quick 0)")
     p.add_argument("--big-uploads", type=int,

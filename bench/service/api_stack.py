@@ -22,7 +22,8 @@ from sqlalchemy import func, insert, select
 from app.pipeline.types import CameraModel
 from app.service.auth import create_key
 from app.service.db.session import session_scope, temporary_database, upgrade
-from app.service.db.models import JourneyRow, JourneySignRow, MapSignRow, utc_now
+from app.service.db.models import (WAITING_FOR_CAMERA, JourneyRow, JourneySignRow, MapSignRow,
+                                   utc_now)
 from app.settings import Settings
 from app.synth.journey import SynthConfig
 from bench.service.serve import child_env, serve, signmap_child
@@ -31,7 +32,7 @@ from bench.paper.suite import JourneySpec, ensure_journey, quick_suite
 # The seeded map: signs spread over a city-sized box, away from the rendered journeys' world.
 CITY = (9.0, 48.0, 9.1, 48.07)  # minlon, minlat, maxlon, maxlat
 STREET = (9.0, 48.0, 9.004, 48.003)
-# A straight road of a small camera: accepted at upload, then failed within seconds by the job
+# A straight road of a small camera: accepted at upload, then parked within seconds by the job
 # ("the journey has no turn"), so many uploads can run through a 2-core machine.
 STRAIGHT = JourneySpec("api-straight-30", SynthConfig(
     n_frames=30, turns=0, world_seed=5, seed=5, camera_id="bench-api-straight",
@@ -130,15 +131,22 @@ def variant(bundle: bytes, vehicle_id: str) -> bytes:
 
 
 def journey_states(url: str, ids: set[str]) -> dict[str, str]:
+    """Journey id -> status, ``waiting`` for a journey parked until its camera is calibrated."""
     with session_scope(url) as session:
-        return dict(session.execute(select(JourneyRow.id, JourneyRow.status)
-                                    .where(JourneyRow.id.in_(ids))).all())
+        rows = session.execute(select(JourneyRow.id, JourneyRow.status, JourneyRow.stage)
+                               .where(JourneyRow.id.in_(ids))).all()
+    return {i: _state(status, stage) for i, status, stage in rows}
+
+
+def _state(status: str, stage: str | None) -> str:
+    return "waiting" if status == "queued" and stage == WAITING_FOR_CAMERA else status
 
 
 def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -> dict:
     """What the database and the logs say became of the accepted uploads (journey id -> 202
-    answers: a re-upload of a failed journey queues it again): each must exist once, end done or
-    failed, have ended once per 202 in the job logs (and its last run be its first attempt), a
+    answers: a re-upload of a failed journey queues it again): each must exist once, end done,
+    failed or waiting for its camera (the straight ones: no turn, a camera nobody calibrated), have
+    ended once per 202 in the job logs (and its last run be its first attempt), a
     done one with as many sign rows as it says; re-uploads of the same bytes must name one
     journey."""
     url = service.settings.effective_database_url
@@ -155,12 +163,13 @@ def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -
     for line in log_text.splitlines():
         for journey_id in _ended_id(line):
             endings[journey_id] += 1
-    statuses = Counter(rows[i].status for i in rows)
+    statuses = Counter(_state(r.status, r.stage) for r in rows.values())
+    ended = ("done", "failed", "waiting")
     return {
         "accepted": len(ids), "requeued_by_reupload": sum(n - 1 for n in accepted.values()),
-        "done": statuses["done"], "failed": statuses["failed"],
+        "done": statuses["done"], "failed": statuses["failed"], "waiting": statuses["waiting"],
         "missing": sorted(ids - set(rows)),
-        "unfinished": sorted(i for i, r in rows.items() if r.status not in ("done", "failed")),
+        "unfinished": sorted(i for i, r in rows.items() if _state(r.status, r.stage) not in ended),
         "attempts_not_1": sorted(i for i, r in rows.items() if r.attempts != 1),
         "ended_not_once": sorted(i for i in ids if endings[i] != accepted[i]),
         "sign_rows_mismatch": sorted(i for i, r in rows.items() if r.status == "done"
@@ -174,7 +183,8 @@ def account(service: Service, accepted: Counter, repeats: dict[str, set[str]]) -
     }
 
 
-_ENDED = re.compile(r"journey (\S+): (?:done in |failed at |internal error during )")
+_ENDED = re.compile(r"journey (\S+): (?:done in |failed at |internal error during "
+                    r"|no turn and no calibration of camera )")
 
 
 def _ended_id(line: str) -> list[str]:

@@ -1,7 +1,9 @@
-"""End to end on the default stack (SQLite, jobs in the API process): a rendered journey with a turn
-is uploaded, calibrated and mapped within 1 m of the truth; then a straight journey of the same
-camera, which cannot calibrate itself, is mapped with the stored calibration (its first 60 frames:
-8 signs, half the cost; what is tested there is that the stored calibration is found and used)."""
+"""End to end on the default stack (SQLite, jobs in the API process): a straight journey of a camera
+nobody calibrated is uploaded first and waits for its camera (queued, stage waiting_for_camera);
+then a rendered journey of the same camera with a turn is uploaded, calibrated and mapped within
+1 m of the truth, and the waiting journey resumes by itself and is mapped with that stored
+calibration (its first 60 frames: 8 signs, half the cost; what is tested there is that the
+stored calibration is found and used)."""
 
 from __future__ import annotations
 
@@ -19,6 +21,10 @@ def _finished(body: dict) -> bool:
     return body["status"] in ("done", "failed")
 
 
+def _stopped(body: dict) -> bool:
+    return _finished(body) or body["stage"] == "waiting_for_camera"
+
+
 def test_embedded_stack_maps_synthetic_journeys(tmp_path, turn_journey_bundle,
                                                 straight_journey_bundle):
     stack = sqlite_stack(tmp_path / "data", embedded_worker=True)
@@ -26,6 +32,11 @@ def test_embedded_stack_maps_synthetic_journeys(tmp_path, turn_journey_bundle,
     turn_zip, turn_truth = turn_journey_bundle
     straight_zip, straight_truth = straight_journey_bundle
     with stack.client() as client:
+        straight_60 = first_frames(straight_zip, 60, tmp_path / "straight-60.zip")
+        straight_id = upload(client, fleet, straight_60.read_bytes())
+        body = poll_journey(client, auth(fleet), straight_id, _stopped)
+        assert (body["status"], body["stage"]) == ("queued", "waiting_for_camera"), body["error"]
+
         turn_id = upload(client, fleet, turn_zip.read_bytes())
         body = poll_journey(client, auth(fleet), turn_id, _finished)
         assert body["status"] == "done", body["error"]
@@ -45,11 +56,10 @@ def test_embedded_stack_maps_synthetic_journeys(tmp_path, turn_journey_bundle,
         assert [f["properties"]["n_journeys"] for f in mapped] == [1] * len(features)
         assert max(map_sign_errors_m(mapped, turn_truth)) < 1.0
 
-        straight_60 = first_frames(straight_zip, 60, tmp_path / "straight-60.zip")
-        straight_id = upload(client, fleet, straight_60.read_bytes())
+        # Woken by the turn journey's self-calibration: run again, with it.
         body = poll_journey(client, auth(fleet), straight_id, _finished)
         assert body["status"] == "done", body["error"]
-        assert body["calibration_source"] == "supplied"
+        assert (body["calibration_source"], body["attempts"]) == ("supplied", 2)
         features = client.get(f"/api/v1/journeys/{straight_id}/signs",
                               headers=auth(fleet)).json()["features"]
         errors = sign_errors_m(features, straight_truth)

@@ -8,12 +8,14 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow
-from app.service.jobs import state
+from app.service.db.models import CALIBRATION_PARAMS, CalibrationRow, JourneyRow, JourneySignRow
+from app.service.jobs import camera_view
+from app.settings import Settings
 
 PAGE_SIZE = 50
 LIST_COLUMNS = (JourneyRow.id, JourneyRow.camera_id, JourneyRow.status, JourneyRow.stage, JourneyRow.progress,
-                JourneyRow.n_frames, JourneyRow.n_signs, JourneyRow.error, JourneyRow.created_at,
+                JourneyRow.n_frames, JourneyRow.n_signs, JourneyRow.error, JourneyRow.message,
+                JourneyRow.created_at,
                 JourneyRow.started_at, JourneyRow.finished_at, JourneyRow.attempts)
 
 
@@ -55,9 +57,10 @@ def camera_ids(session: Session) -> list[str]:
 
 def progress(session: Session, ids: list[str]) -> dict[str, dict[str, Any]]:
     rows = session.execute(select(JourneyRow.id, JourneyRow.status, JourneyRow.stage, JourneyRow.progress,
-                                  JourneyRow.error, JourneyRow.n_signs).where(JourneyRow.id.in_(ids)))
+                                  JourneyRow.error, JourneyRow.message, JourneyRow.n_signs)
+                           .where(JourneyRow.id.in_(ids)))
     return {r.id: {"status": r.status, "stage": r.stage, "progress": r.progress,
-                   "error": r.error, "n_signs": r.n_signs} for r in rows}
+                   "error": r.error, "message": r.message, "n_signs": r.n_signs} for r in rows}
 
 
 def journey_signs(session: Session, journey_id: str) -> list[JourneySignRow]:
@@ -66,7 +69,7 @@ def journey_signs(session: Session, journey_id: str) -> list[JourneySignRow]:
 
 
 def calibrations(session: Session, camera_id: str | None = None) -> list[CalibrationRow]:
-    """Self-calibrations, per camera, oldest first."""
+    """Calibrations (self and registered), per camera, oldest first."""
     query = select(CalibrationRow).order_by(CalibrationRow.camera_id,
                                                CalibrationRow.created_at, CalibrationRow.id)
     if camera_id is not None:
@@ -75,23 +78,58 @@ def calibrations(session: Session, camera_id: str | None = None) -> list[Calibra
 
 
 @dataclass(frozen=True)
-class CameraConsensus:
-    """What the camera's later journeys get as its stored calibration (``state.consensus`` of
-    its ``considered`` newest self-calibrations, row ids) and which of those agree on it."""
+class CameraSection:
+    """One camera on the Cameras page: ``camera_view``'s view, its calibrations oldest first,
+    the fx chart's points, the ids of the calibrations its epochs left out (each with the
+    reason) and of those its current calibration considered, and the API's answer."""
 
-    camera: Any  # CameraModel | None
-    members: frozenset[int]
+    view: camera_view.CameraView
+    rows: list[CalibrationRow]
+    chart: list[tuple[float, float]]
+    left_out: dict[int, str]
     considered: frozenset[int]
+    answer: dict[str, Any]
 
 
-def camera_consensus(records: list[CalibrationRow], agree_rel: float, newest: int
-                     ) -> CameraConsensus:
-    """``records``: one camera's self-calibrations, oldest first (as ``calibrations`` gives);
-    the ``newest`` of them vote."""
-    voters = records[::-1][:newest]
-    camera, members = state.consensus([state.stored_camera(r) for r in voters], agree_rel)
-    return CameraConsensus(camera, frozenset(voters[i].id for i in members),
-                           frozenset(r.id for r in voters))
+def camera_sections(session: Session, settings: Settings) -> list[CameraSection]:
+    """Every camera the service knows, by camera_id."""
+    sections = []
+    for camera_id in camera_view.camera_ids(session):
+        view = camera_view.camera_view(session, camera_id, settings)
+        if view is None:
+            continue
+        rows = view.rows
+        current = view.current
+        sections.append(CameraSection(
+            view=view, rows=rows, chart=fx_chart(rows),
+            left_out={row.id: reason for e in view.epochs for row, reason in e.left_out},
+            considered=frozenset(r.id for r in current.considered) if current else frozenset(),
+            answer=camera_view.to_json(view)))
+    return sections
+
+
+REGISTRATION_FIELDS = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")
+
+
+def registration_body(form: dict[str, str]) -> tuple[dict[str, Any], list[str]]:
+    """The dashboard form's fields as a PUT /cameras/{id}/calibration body (numbers parsed; empty
+    optional fields left out), and what is not a number."""
+    body: dict[str, Any] = {}
+    errors = []
+    for name in (*REGISTRATION_FIELDS, *(f"sigma_{k}" for k in CALIBRATION_PARAMS)):
+        value = (form.get(name) or "").strip()
+        if not value:
+            continue
+        try:
+            number: float | int = int(value) if name in ("width", "height") else float(value)
+        except ValueError:
+            errors.append(f"{name}: not a number: {value[:40]!r}")
+            continue
+        if name.startswith("sigma_"):
+            body.setdefault("sigma", {})[name.removeprefix("sigma_")] = number
+        else:
+            body[name] = number
+    return body, errors
 
 
 def fx_chart(records: list[CalibrationRow], width: int = 240, height: int = 60

@@ -7,17 +7,19 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 from typing import Annotated
-from urllib.parse import urlsplit
+from urllib.parse import quote, urlsplit
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Query, Request
 from fastapi import Path as PathParam
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 from app.service import storage
 from app.service.admin import data, media
 from app.service.admin.session import (DashboardSession, cookie_args, current_session,
                                        deletion_args, sign_in, sign_out)
+from app.service.api.routes import cameras as camera_routes
 from app.service.api.routes import journeys as journey_routes
 from app.service.api.routes import map as map_routes
 from app.service.api.routes import tiles as tile_routes
@@ -26,6 +28,7 @@ from app.service.auth import RevokedKey, UnknownKey, list_keys, revoke_key
 from app.service.db import crud
 from app.service.db.models import STATUSES, CoverageRow, JourneyRow, JourneySignRow
 from app.service.deps import SessionDep, SettingsDep, count_failure, refuse_if_throttled
+from app.service.jobs import cameras as camera_jobs
 
 log = logging.getLogger(__name__)
 templates = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -119,8 +122,9 @@ def journeys_progress(_signed_in: SignedIn, session: SessionDep, ids: str = "") 
 def retry(request: Request, journey_id: str, _signed_in: SignedIn, session: SessionDep
           ) -> Response:
     _same_origin(request)
-    if not crud.requeue_failed(session, journey_id):
-        raise HTTPException(409, "only a failed journey can be retried")
+    if not crud.retry(session, journey_id):
+        raise HTTPException(409, "only a failed journey, or one waiting for its camera, can be "
+                                 "retried")
     session.commit()  # before it is queued: the job reads the row
     request.app.state.queue.submit(journey_id)
     log.info("journey %s: retried from the dashboard", journey_id)
@@ -202,19 +206,81 @@ for _path, _endpoint in (("/api/signs", map_routes.get_map_signs),
                          dependencies=[Depends(current_session)])
 
 
+def _cameras_page(request: Request, session, settings, status_code: int = 200,
+                  form_camera: str | None = None, form: dict | None = None,
+                  form_errors: list[str] | None = None) -> HTMLResponse:
+    return _page(request, "cameras.html", status_code, sections=data.camera_sections(
+        session, settings), agree_pct=100 * settings.calibration_flag_rel,
+        newest=settings.calibration_consensus_newest, form_camera=form_camera,
+        form=form or {}, form_errors=form_errors or [])
+
+
 @router.get("/cameras")
 def cameras(request: Request, _signed_in: SignedIn, settings: SettingsDep,
             session: SessionDep) -> HTMLResponse:
-    records = data.calibrations(session)
-    by_camera: dict[str, list] = {}
-    for record in records:
-        by_camera.setdefault(record.camera_id, []).append(record)
-    charts = {camera: data.fx_chart(rows) for camera, rows in by_camera.items()}
-    consensus = {camera: data.camera_consensus(rows, settings.calibration_flag_rel,
-                                               settings.calibration_consensus_newest)
-                 for camera, rows in by_camera.items()}
-    return _page(request, "cameras.html", by_camera=by_camera, charts=charts,
-                 consensus=consensus, agree_pct=100 * settings.calibration_flag_rel)
+    return _cameras_page(request, session, settings)
+
+
+class CalibrationForm(BaseModel):
+    """The Cameras page's registration form, as typed (``data.registration_body`` parses it)."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    width: str = ""
+    height: str = ""
+    fx: str = ""
+    fy: str = ""
+    cx: str = ""
+    cy: str = ""
+    k1: str = ""
+    k2: str = ""
+    sigma_fx: str = ""
+    sigma_fy: str = ""
+    sigma_cx: str = ""
+    sigma_cy: str = ""
+    sigma_k1: str = ""
+    sigma_k2: str = ""
+
+
+@router.post(f"/cameras/{{camera_id:{camera_routes.CAMERA_ID}}}/calibration")
+def register_calibration(request: Request, camera_id: str,
+                         form: Annotated[CalibrationForm, Form()], signed_in: SignedIn,
+                         settings: SettingsDep, session: SessionDep) -> Response:
+    """The API's PUT /cameras/{camera_id}/calibration from the Cameras page's form: the page
+    again with what is wrong (422), or back to the camera's section."""
+    _same_origin(request)
+    typed = form.model_dump()
+    body, errors = data.registration_body(typed)
+    registration = None
+    if not errors:
+        try:
+            registration = camera_jobs.Registration.model_validate(body)
+        except ValidationError as exc:
+            errors = [f"{'.'.join(str(p) for p in e['loc'])}: "
+                      f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()]
+    url = settings.effective_database_url
+    if registration is not None:
+        try:
+            epoch, new = camera_jobs.register(url, camera_id, registration,
+                                              signed_in.principal.name)
+        except camera_jobs.InvalidCalibration as exc:
+            errors = [f"{e['loc'][-1]}: {e['msg']}" for e in exc.errors]
+    if errors:
+        return _cameras_page(request, session, settings, 422, form_camera=camera_id,
+                             form=typed, form_errors=errors)
+    session.commit()  # the page's reads are done; the wake commits on its own
+    try:
+        resumed = camera_jobs.wake_waiting(url, camera_id,
+                                           (registration.width, registration.height),
+                                           request.app.state.queue.submit)
+    except Exception:  # the queue is down: they stay waiting, and the workers' sweeps wake them
+        log.exception("camera %s: waiting journeys not queued again now", camera_id)
+        resumed = []
+    log.info("camera %s: calibration registered from the dashboard by %r (epoch %d%s); %d "
+             "waiting journeys queued again", camera_id, signed_in.principal.name, epoch,
+             "" if new else ", unchanged", len(resumed))
+    return RedirectResponse(f"/admin/cameras#camera-{quote(camera_id, safe='')}",
+                            status_code=303)
 
 
 @router.get("/keys")

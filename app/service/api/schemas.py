@@ -76,9 +76,16 @@ class JourneyOut(BaseModel):
 
     id: str
     status: Literal["queued", "running", "done", "failed"]
-    stage: str | None = Field(description="pipeline stage running now, or where it failed")
+    stage: str | None = Field(description="pipeline stage running now, or where it failed; "
+                                          "'waiting_for_camera' for a queued journey that "
+                                          "waits for its camera's calibration (see `message`)")
     progress: float = Field(ge=0.0, le=1.0)
     error: str | None = Field(description="why the journey failed")
+    message: str | None = Field(
+        None, description="while queued with stage 'waiting_for_camera': what it waits for. It "
+                          "has no turn to calibrate on and its camera no calibration yet; it "
+                          "resumes by itself once the camera has one (a journey of the camera "
+                          "with a turn, or one registered: PUT /cameras/{camera_id}/calibration)")
     calibration: CalibrationOut | None = Field(description="the camera model used, once done")
     calibration_source: str | None = Field(
         description="'self' (this journey calibrated the camera), 'supplied' (an earlier "
@@ -188,3 +195,82 @@ class MapChanges(BaseModel):
     created: list[MapSignFeature]
     updated: list[MapSignFeature]
     removed: list[dict[str, Any]] = Field(description="tombstones: {id, removed_at}")
+
+
+class CalibrationSigmaOut(BaseModel):
+    """1-sigma of each parameter in its own units; null: not known."""
+
+    fx: float | None
+    fy: float | None
+    cx: float | None
+    cy: float | None
+    k1: float | None
+    k2: float | None
+
+
+class LeftOutOut(BaseModel):
+    journey_id: str | None = Field(description="null for another owner's journey")
+    reason: str = Field(examples=["fx 4.1 % off the registered calibration, over the 3 % the "
+                                  "journeys must agree within"])
+
+
+class CameraEpochOut(BaseModel):
+    epoch: int = Field(description="1, 2, ...; a registered calibration starts a new one")
+    source: Literal["self", "registered"] = Field(
+        description="'registered': an admin gave the epoch's calibration; 'self': its journeys "
+                    "calibrated the camera")
+    started_at: datetime
+    calibration: CalibrationOut | None
+    sigma: CalibrationSigmaOut | None
+    journeys: int = Field(description="the journeys in the epoch's calibration")
+    self_calibrations: int = Field(description="the epoch's self-calibrations, all")
+    registered_by: str | None = Field(None, description="admin callers only: the key's name")
+
+
+class CameraOut(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{
+        "camera_id": "cam-17", "width": 1242, "height": 375,
+        "calibration": {"fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9, "k1": -0.3,
+                        "k2": 0.1},
+        "source": "consensus", "epoch": 1,
+        "sigma": {"fx": 1.2, "fy": 1.4, "cx": 0.8, "cy": 0.6, "k1": 0.002, "k2": 0.004},
+        "sigma_basis": "standard error of the mean of 3 self-calibrations (their standard "
+                       "deviation over sqrt(3))",
+        "journeys": 3, "left_out": [], "waiting": 0,
+        "epochs": [{"epoch": 1, "source": "self", "started_at": "2026-11-21T10:01:02Z",
+                    "calibration": {"fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9,
+                                    "k1": -0.3, "k2": 0.1},
+                    "sigma": {"fx": 1.2, "fy": 1.4, "cx": 0.8, "cy": 0.6, "k1": 0.002,
+                              "k2": 0.004},
+                    "journeys": 3, "self_calibrations": 3, "registered_by": None}]}]})
+
+    camera_id: str
+    width: int | None = Field(description="image width of the calibration (or, without one, of "
+                                          "the camera's journeys), pixels")
+    height: int | None
+    calibration: CalibrationOut | None = Field(
+        description="what the camera's journeys without a turn are given; null: none yet")
+    source: Literal["registered", "consensus"] | None = Field(
+        description="'registered': as an admin gave it; 'consensus': the mean of the agreeing "
+                    "newest self-calibrations of its epoch")
+    epoch: int | None = Field(description="the epoch the calibration is of (the newest)")
+    sigma: CalibrationSigmaOut | None = Field(
+        description="1-sigma of the calibration, same units: as registered (0 where none was "
+                    "given), or the standard error of the consensus mean (null for a single "
+                    "self-calibration: not known)")
+    sigma_basis: str | None = Field(description="where the sigma comes from, in words")
+    journeys: int = Field(description="the journeys in the calibration: the consensus's members, "
+                                      "or the self-calibrations agreeing with a registered one")
+    left_out: list[LeftOutOut] = Field(
+        description="the epoch's journeys whose self-calibration disagreed, and why")
+    waiting: int = Field(description="journeys queued with stage waiting_for_camera: no turn, "
+                                     "and no calibration of this camera yet")
+    epochs: list[CameraEpochOut] = Field(description="oldest first; the last is the current")
+
+
+class CameraRegistered(CameraOut):
+    registered_epoch: int = Field(description="the epoch of the registered calibration")
+    new_epoch: bool = Field(description="false when it was registered already (same values): "
+                                        "nothing changed")
+    resumed: list[str] = Field(description="journeys that were waiting for this camera and are "
+                                           "queued again")

@@ -6,14 +6,18 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Any
 
-from sqlalchemy import (JSON, DateTime, Float, ForeignKey, Integer, String, Text, TypeDecorator,
-                        UniqueConstraint)
+from sqlalchemy import (JSON, CheckConstraint, DateTime, Float, ForeignKey, Index, Integer, String,
+                        Text, TypeDecorator, UniqueConstraint, text)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from app.pipeline.bundle.detections import MAX_CLASS_CHARS
 
 ROLES = ("fleet", "reader", "admin")
 STATUSES = ("queued", "running", "done", "failed")
+# The stage of a queued journey that waits for its camera's calibration: it has no turn to
+# calibrate on and its camera none yet (``jobs.cameras``). Claimed only once woken.
+WAITING_FOR_CAMERA = "waiting_for_camera"
+CALIBRATION_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2")
 
 
 def utc_now() -> datetime:
@@ -102,6 +106,11 @@ class JourneyRow(Base):
     calibration_flag: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     # What each pipeline stage did (StageReport.to_json() each), done or failed; NULL before 0006.
     report: Mapped[list[Any] | None] = mapped_column(JSON)
+    # While queued with stage WAITING_FOR_CAMERA: what the journey waits for (0008).
+    message: Mapped[str | None] = mapped_column(Text)
+    # Its frames' size, once a run has read them (done or waiting; 0008).
+    image_width: Mapped[int | None] = mapped_column(Integer)
+    image_height: Mapped[int | None] = mapped_column(Integer)
 
 
 class JourneySignRow(Base):
@@ -129,14 +138,30 @@ class JourneySignRow(Base):
 
 
 class CalibrationRow(Base):
-    """Every successful self-calibration; later journeys of the camera reuse what most of its
-    calibrations agree on (``jobs.state.camera_calibration``)."""
+    """A calibration of a camera: a journey's successful self-calibration (``source`` 'self',
+    ``journey_id`` set) or one an admin registered ('registered', no journey). A registered one
+    starts a new ``epoch`` of the camera; a self-calibration joins the newest. The camera's later
+    journeys get its newest epoch's registered calibration as given, or else what most of that
+    epoch's self-calibrations agree on (``jobs.state.stored_calibration``;
+    docs/decisions/registered-calibration.md)."""
 
     __tablename__ = "calibrations"
+    __table_args__ = (
+        CheckConstraint("(source = 'self' AND journey_id IS NOT NULL) "
+                        "OR (source = 'registered' AND journey_id IS NULL)",
+                        name="ck_calibrations_source"),
+        Index("ix_calibrations_camera_epoch", "camera_id", "epoch"),
+        Index("uq_calibrations_registered_epoch", "camera_id", "epoch", unique=True,
+              sqlite_where=text("source = 'registered'"),
+              postgresql_where=text("source = 'registered'")),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     camera_id: Mapped[str] = mapped_column(String(200), index=True)
-    journey_id: Mapped[str] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"), index=True)
+    journey_id: Mapped[str | None] = mapped_column(ForeignKey("journeys.id", ondelete="CASCADE"),
+                                                   index=True)
+    source: Mapped[str] = mapped_column(String(16), default="self", server_default="self")
+    epoch: Mapped[int] = mapped_column(Integer, default=1, server_default="1")
     width: Mapped[int] = mapped_column(Integer)
     height: Mapped[int] = mapped_column(Integer)
     fx: Mapped[float] = mapped_column(Float)
@@ -145,11 +170,27 @@ class CalibrationRow(Base):
     cy: Mapped[float] = mapped_column(Float)
     k1: Mapped[float] = mapped_column(Float)
     k2: Mapped[float] = mapped_column(Float)
-    n_images: Mapped[int] = mapped_column(Integer)
-    n_registered: Mapped[int] = mapped_column(Integer)
+    # 1-sigma per parameter, its own units; NULL: unknown.
+    sigma_fx: Mapped[float | None] = mapped_column(Float)
+    sigma_fy: Mapped[float | None] = mapped_column(Float)
+    sigma_cx: Mapped[float | None] = mapped_column(Float)
+    sigma_cy: Mapped[float | None] = mapped_column(Float)
+    sigma_k1: Mapped[float | None] = mapped_column(Float)
+    sigma_k2: Mapped[float | None] = mapped_column(Float)
+    # Self-calibrations only.
+    n_images: Mapped[int | None] = mapped_column(Integer)
+    n_registered: Mapped[int | None] = mapped_column(Integer)
     reprojection_error_px: Mapped[float | None] = mapped_column(Float)
-    rotation_deg: Mapped[float] = mapped_column(Float)
+    rotation_deg: Mapped[float | None] = mapped_column(Float)
+    # Registered calibrations only: the key's name that registered it.
+    registered_by: Mapped[str | None] = mapped_column(String(200))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+    def params(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in CALIBRATION_PARAMS}
+
+    def sigma(self) -> dict[str, float | None]:
+        return {k: getattr(self, f"sigma_{k}") for k in CALIBRATION_PARAMS}
 
 
 class MapSignRow(Base):

@@ -6,9 +6,11 @@ the API stays responsive, a crash of the job cannot take the API down, and stopp
 the job with its COLMAP grandchildren. The job process is tied to the API process as COLMAP's are to
 it (``lifeline.die_with_parent``): an API killed with SIGKILL, which can end nothing, takes its job
 with it, instead of leaving it running alone on a journey the next API start requeues and runs
-again. The queue is memory only, so on start (and every half ``stale_after_s``) the database is
-swept: stale running journeys are requeued, queued ones submitted (and work dirs of runs no longer
-running deleted).
+again. The queue is memory only, so on start (and every half ``stale_after_s``, and after every
+job) the database is swept: stale running journeys are requeued, journeys waiting for a camera
+that has a calibration now are woken (``jobs.cameras.wake_calibrated``: a job's own wakes come
+this way, its process has no queue to submit to), queued ones submitted (not those waiting for
+their camera), and work dirs of runs no longer running deleted.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import threading
 
 from app import logs
 from app.pipeline.colmap.lifeline import die_with_parent
-from app.service.jobs import state
+from app.service.jobs import cameras, state
 from app.service.db.session import session_scope
 from app.service.jobs.sweep import sweep_work
 from app.settings import Settings
@@ -93,14 +95,17 @@ class EmbeddedWorker:
                 pass
 
     def sweep(self) -> None:
-        """Requeue stale running journeys, delete the work dirs of runs no longer running and
-        submit every queued journey."""
-        with session_scope(self.settings.effective_database_url) as session:
+        """Requeue stale running journeys, wake those waiting for a calibrated camera, delete the
+        work dirs of runs no longer running and submit every queued journey."""
+        url = self.settings.effective_database_url
+        with session_scope(url) as session:
             requeued = state.requeue_stale(session, self.settings.stale_after_s,
                                               self.settings.max_attempts)
-            ids = state.queued_ids(session)
         if requeued:
             log.warning("requeued journeys with a stale heartbeat: %s", ", ".join(requeued))
+        cameras.wake_calibrated(url, self.settings, None)  # submitted with the queued ones
+        with session_scope(url) as session:
+            ids = state.queued_ids(session)
         sweep_work(self.settings.data_dir, self.settings.effective_database_url)
         for journey_id in ids:
             self.submit(journey_id)

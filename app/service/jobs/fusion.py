@@ -77,11 +77,12 @@ class FusionSummary:
     biased_journeys: list[str]  # journey ids
 
 
-def calibration_flag(stored: CameraModel | None, result: JourneyResult, max_rel: float
-                     ) -> dict | None:
+def calibration_flag(stored: CameraModel | None, result: JourneyResult, max_rel: float,
+                     stored_source: str | None = None) -> dict | None:
     """Why this journey's self-calibration disagrees with the camera's stored one, or None:
     fx or fy off by more than ``max_rel`` relatively, or cx/cy by more than ``max_rel`` of the
-    image width/height."""
+    image width/height. ``stored_source``: 'registered' or 'consensus'
+    (``state.StoredCalibration.source``), said in the flag when given."""
     calib = result.calibration
     if stored is None or calib.source != "self":
         return None
@@ -90,9 +91,13 @@ def calibration_flag(stored: CameraModel | None, result: JourneyResult, max_rel:
     over = sorted(k for k, v in deviation.items() if v > max_rel)
     if not over:
         return None
-    return {"reason": f"self-calibration differs from the stored one in {', '.join(over)}",
+    which = "registered" if stored_source == "registered" else "stored"
+    flag = {"reason": f"self-calibration differs from the {which} one in {', '.join(over)}",
             "relative_deviation": {k: round(v, 5) for k, v in deviation.items()},
             "threshold": max_rel, "stored": stored.params()}
+    if stored_source is not None:
+        flag["stored_source"] = stored_source
+    return flag
 
 
 def journey_key(row: JourneyRow) -> str:
@@ -113,13 +118,15 @@ def captured_at_s(row: JourneyRow) -> float:
 
 def store_journey(session: Session, journey_id: str, attempt: int, journey: JourneyData,
                   result: JourneyResult, timings_s: dict[str, float],
-                  known_camera: CameraModel | None, settings: Settings) -> bool:
+                  known_camera: CameraModel | None, settings: Settings,
+                  stored_source: str | None = None) -> bool:
     """In the caller's transaction: the journey's result (``state.store_result``), its coverage
     and its calibration flag. False (nothing written) when this run no longer owns the journey."""
     if not state.store_result(session, journey_id, attempt, journey, result, timings_s):
         return False
     row = session.get(JourneyRow, journey_id)
-    row.calibration_flag = calibration_flag(known_camera, result, settings.calibration_flag_rel)
+    row.calibration_flag = calibration_flag(known_camera, result, settings.calibration_flag_rel,
+                                            stored_source)
     if row.calibration_flag:
         log.warning("journey %s: %s", journey_id, row.calibration_flag["reason"])
     session.merge(map_rows.coverage_row(row, journey_key(row), captured_at_s(row), result))
@@ -128,7 +135,8 @@ def store_journey(session: Session, journey_id: str, attempt: int, journey: Jour
 
 def store_and_fuse(url: str, journey_id: str, attempt: int, journey: JourneyData,
                    result: JourneyResult, timings_s: dict[str, float],
-                   known_camera: CameraModel | None, settings: Settings) -> bool:
+                   known_camera: CameraModel | None, settings: Settings,
+                   stored_source: str | None = None) -> bool:
     """``store_journey`` and the re-fusion of the region around it in ONE transaction, so that a
     client that sees the journey done finds its signs in the map too (stored first and fused in a
     second commit, a poller could read "done" and an empty map in between). When the fusion
@@ -137,7 +145,7 @@ def store_and_fuse(url: str, journey_id: str, attempt: int, journey: JourneyData
     try:
         with fusion_session(url) as session:
             if not store_journey(session, journey_id, attempt, journey, result, timings_s,
-                                 known_camera, settings):
+                                 known_camera, settings, stored_source):
                 return False
             summary = _fuse_around(session, journey_id, settings)
     except Exception:
@@ -145,7 +153,7 @@ def store_and_fuse(url: str, journey_id: str, attempt: int, journey: JourneyData
                       journey_id)
         with session_scope(url) as session:
             return store_journey(session, journey_id, attempt, journey, result, timings_s,
-                                 known_camera, settings)
+                                 known_camera, settings, stored_source)
     if summary is not None:
         _log(f"journey {journey_id}", summary)
     return True

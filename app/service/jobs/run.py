@@ -1,4 +1,7 @@
-"""The one journey job, run alike by the Celery task and by the embedded worker."""
+"""The one journey job, run alike by the Celery task and by the embedded worker.
+
+A journey without a turn whose camera has no calibration does not fail: it waits for its camera
+(``jobs.cameras``). A journey that self-calibrated wakes the journeys waiting for its camera."""
 
 from __future__ import annotations
 
@@ -6,13 +9,14 @@ import logging
 import shutil
 import threading
 import time
+from typing import Callable
 
 from app.pipeline.bundle import read_bundle
 from app.pipeline.detect import apply_detector, bundle_has_detections
 from app.pipeline.run import process_journey
-from app.pipeline.types import PipelineError, StageReport
+from app.pipeline.types import NoTurnError, PipelineError, StageReport
 from app.service import storage
-from app.service.jobs import fusion, state
+from app.service.jobs import cameras, fusion, state
 from app.service.db.session import session_scope
 from app.service.db.models import JourneyRow
 from app.settings import Settings
@@ -45,18 +49,22 @@ class _Heartbeat(threading.Thread):
                 log.warning("journey %s: heartbeat failed", self.journey_id, exc_info=True)
 
 
-def run_journey(journey_id: str, settings: Settings) -> None:
+def run_journey(journey_id: str, settings: Settings,
+                submit: Callable[[str], None] | None = None) -> None:
     """Process one uploaded journey and store its signs; every outcome ends in the journey's row
-    (done, or failed with a reason). Safe to call again for the same journey: it claims the row
-    first and replaces, never adds, the journey's signs."""
+    (done, failed with a reason, or queued waiting for its camera). Safe to call again for the
+    same journey: it claims the row first and replaces, never adds, the journey's signs.
+    ``submit`` queues a journey this run puts back to the queue (one that waited for this
+    camera, or this one); None: the caller's sweep finds them (the embedded worker's)."""
     url = settings.effective_database_url
     with session_scope(url) as session:
         attempt = state.claim(session, journey_id, settings.stale_after_s, settings.max_attempts)
         row = session.get(JourneyRow, journey_id) if attempt is not None else None
         sha256, camera_id = (row.bundle_sha256, row.camera_id) if row else (None, None)
-        known_camera = (state.camera_calibration(
+        stored_calibration = (state.stored_calibration(
             session, camera_id, journey_id, agree_rel=settings.calibration_flag_rel,
             newest=settings.calibration_consensus_newest) if row else None)
+    known_camera = stored_calibration.camera if stored_calibration else None
     if attempt is None:
         log.info("journey %s: not claimed (finished, unknown or owned by a live run)", journey_id)
         return
@@ -76,6 +84,7 @@ def run_journey(journey_id: str, settings: Settings) -> None:
                 raise Superseded(journey_id)
 
     stage = "extract"
+    size, other_size = (0, 0), None
     try:
         try:
             # Into this worker's own scratch (an object store) or read in place (data_dir/bundles).
@@ -86,6 +95,14 @@ def run_journey(journey_id: str, settings: Settings) -> None:
                               decode_images=True, progress=lambda fraction: progress(
                                   "extract", 0.0, f"video {100 * fraction:.0f} % decoded"))
         progress("extract", 0.0, f"{len(journey.frames)} frames")
+        size = (journey.image_width, journey.image_height)
+        if known_camera is not None and (known_camera.width, known_camera.height) != size:
+            # Not this journey's camera as far as the pixels go (issue 66's lens changes are
+            # not made yet): it calibrates itself, or fails saying why.
+            other_size = f"{known_camera.width}x{known_camera.height}"
+            log.warning("journey %s: camera %s's stored calibration is for %s frames, this "
+                        "journey's are %dx%d: not used", journey_id, camera_id, other_size, *size)
+            known_camera = stored_calibration = None
         stage = "detect"
         journey = apply_detector(journey, settings.detector, bundle_has_detections(bundle),
                                  progress=progress)
@@ -93,16 +110,34 @@ def run_journey(journey_id: str, settings: Settings) -> None:
         result = process_journey(journey, settings.pipeline, workdir / "pipeline",
                                  known_camera=known_camera, progress=progress)
         timings_s = {**result.timings_s, "total_s": round(time.perf_counter() - t0, 3)}
-        stored = fusion.store_and_fuse(url, journey_id, attempt, journey, result, timings_s,
-                                           known_camera, settings)
+        stored = fusion.store_and_fuse(
+            url, journey_id, attempt, journey, result, timings_s, known_camera, settings,
+            stored_source=stored_calibration.source if stored_calibration else None)
         if not stored:
             raise Superseded(journey_id)
         log.info("journey %s: done in %.1f s, %d signs (calibration: %s), stages %s", journey_id,
                  timings_s["total_s"], len(result.signs), result.calibration.source,
                  result.timings_s)
+        if result.calibration.source == "self":
+            _wake(url, camera_id, size, submit)
     except Superseded:
         log.warning("journey %s: attempt %d was superseded by a newer run; its result is dropped",
                     journey_id, attempt)
+    except NoTurnError as exc:
+        if other_size is not None:
+            reason = (f"{exc.finding}; camera {camera_id}'s calibration is for {other_size} "
+                      f"frames and this journey's are {size[0]}x{size[1]}, so it cannot be used "
+                      f"(a camera whose frames change size is not followed yet: upload each "
+                      f"size under a camera_id of its own)")
+            log.info("journey %s: failed at %s: %s", journey_id, exc.stage, reason)
+            _fail(url, journey_id, attempt, exc.stage, reason, exc.report)
+        else:
+            outcome = cameras.wait_for_camera(url, journey_id, attempt, camera_id, size,
+                                              exc.finding, exc.report, settings, submit)
+            log.info("journey %s: no turn and no calibration of camera %s: %s", journey_id,
+                     camera_id, {"waiting": "waits for the camera",
+                                 "requeued": "the camera was calibrated meanwhile; queued again",
+                                 None: "superseded meanwhile"}[outcome])
     except PipelineError as exc:
         log.info("journey %s: failed at %s: %s", journey_id, exc.stage, exc.reason)
         _fail(url, journey_id, attempt, exc.stage, exc.reason, exc.report)
@@ -113,6 +148,17 @@ def run_journey(journey_id: str, settings: Settings) -> None:
     finally:
         heartbeat.stopped.set()
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _wake(url: str, camera_id: str, size: tuple[int, int],
+          submit: Callable[[str], None] | None) -> None:
+    """The camera has a self-calibration now: the journeys waiting for it go back to the queue.
+    The journey is done whatever happens here; a wake that fails is the sweeps' to repeat."""
+    try:
+        cameras.wake_waiting(url, camera_id, size, submit)
+    except Exception:
+        log.exception("camera %s: its waiting journeys could not be woken now; a sweep will",
+                      camera_id)
 
 
 def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str,

@@ -8,14 +8,17 @@ then wakes up can therefore never overwrite the run that replaced it.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 import numpy as np
-from sqlalchemy import and_, delete, or_, select, update
+from sqlalchemy import and_, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
-from app.pipeline.types import CameraModel, Journey as JourneyData, JourneyResult, StageReport
-from app.service.db.models import CalibrationRow, JourneyRow, JourneySignRow, utc_now
+from app.pipeline.types import (INTRINSICS_STD, CameraModel, Journey as JourneyData,
+                                JourneyResult, StageReport)
+from app.service.db.models import (WAITING_FOR_CAMERA, CalibrationRow, JourneyRow, JourneySignRow,
+                                   utc_now)
 
 
 def _stale(cutoff: datetime):
@@ -23,20 +26,26 @@ def _stale(cutoff: datetime):
                 or_(JourneyRow.heartbeat_at.is_(None), JourneyRow.heartbeat_at < cutoff))
 
 
+def not_waiting():
+    """A queued journey that may be claimed: not one waiting for its camera (stage NULL counts)."""
+    return or_(JourneyRow.stage.is_(None), JourneyRow.stage != WAITING_FOR_CAMERA)
+
+
 def _mine(journey_id: str, attempt: int):
     return and_(JourneyRow.id == journey_id, JourneyRow.attempts == attempt, JourneyRow.status == "running")
 
 
 def claim(session: Session, journey_id: str, stale_after_s: float, max_attempts: int) -> int | None:
-    """Mark the journey running if it is queued, or running with a stale heartbeat and attempts
-    left; return the new attempt number, or None when another run owns it or it is finished."""
+    """Mark the journey running if it is queued (and not waiting for its camera: woken first,
+    ``jobs.cameras``), or running with a stale heartbeat and attempts left; return the new
+    attempt number, or None when another run owns it, it waits or it is finished."""
     now = utc_now()
     cutoff = now - timedelta(seconds=stale_after_s)
     give_up_exhausted(session, cutoff, max_attempts)
     return session.scalars(
         update(JourneyRow)
         .where(JourneyRow.id == journey_id,
-               or_(JourneyRow.status == "queued",
+               or_(and_(JourneyRow.status == "queued", not_waiting()),
                    and_(_stale(cutoff), JourneyRow.attempts < max_attempts)))
         .values(status="running", attempts=JourneyRow.attempts + 1, stage="start", progress=0.0,
                 error=None, started_at=now, heartbeat_at=now, finished_at=None)
@@ -71,7 +80,9 @@ def abandon(session: Session, journey_id: str) -> None:
 
 
 def queued_ids(session: Session) -> list[str]:
-    return list(session.scalars(select(JourneyRow.id).where(JourneyRow.status == "queued")
+    """Queued journeys to submit, oldest first; not those waiting for their camera."""
+    return list(session.scalars(select(JourneyRow.id).where(JourneyRow.status == "queued",
+                                                            not_waiting())
                                 .order_by(JourneyRow.created_at)))
 
 
@@ -100,19 +111,80 @@ def fail(session: Session, journey_id: str, attempt: int, stage: str | None, rea
                            ).rowcount == 1
 
 
+def back_to_queue(session: Session, journey_id: str, attempt: int, *, stage: str,
+                  message: str | None = None, report: list | None = None,
+                  image_size: tuple[int, int] | None = None) -> bool:
+    """End this run without a result and put its journey back to queued at ``stage`` (e.g.
+    waiting for its camera, ``jobs.cameras``), with ``message`` and the stage reports as JSON;
+    False if this run lost the job."""
+    values: dict = {"status": "queued", "stage": stage[:64], "progress": 0.0, "error": None,
+                    "message": message, "report": report, "finished_at": None,
+                    "heartbeat_at": utc_now()}
+    if image_size is not None:
+        values["image_width"], values["image_height"] = image_size
+    return session.execute(update(JourneyRow).where(_mine(journey_id, attempt)).values(**values)
+                           ).rowcount == 1
+
+
+@dataclass(frozen=True)
+class StoredCalibration:
+    """What a camera's later journeys are given: its newest epoch's registered calibration
+    (``source`` 'registered', as given), or the ``consensus`` of that epoch's self-calibrations
+    ('consensus')."""
+
+    camera: CameraModel
+    source: str
+    epoch: int
+
+
+def current_epoch(session: Session, camera_id: str) -> int | None:
+    """The camera's newest calibration epoch; None before its first calibration."""
+    return session.scalar(select(func.max(CalibrationRow.epoch))
+                          .where(CalibrationRow.camera_id == camera_id))
+
+
+def epoch_self_rows(session: Session, camera_id: str, epoch: int,
+                    exclude_journey_id: str | None = None, limit: int | None = None
+                    ) -> list[CalibrationRow]:
+    """The epoch's self-calibrations, newest first."""
+    query = (select(CalibrationRow)
+             .where(CalibrationRow.camera_id == camera_id, CalibrationRow.epoch == epoch,
+                    CalibrationRow.source == "self")
+             .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc()))
+    if exclude_journey_id is not None:
+        query = query.where(CalibrationRow.journey_id != exclude_journey_id)
+    return list(session.scalars(query.limit(limit)))
+
+
+def registered_row(session: Session, camera_id: str, epoch: int) -> CalibrationRow | None:
+    return session.scalars(select(CalibrationRow).where(
+        CalibrationRow.camera_id == camera_id, CalibrationRow.epoch == epoch,
+        CalibrationRow.source == "registered")).first()
+
+
+def stored_calibration(session: Session, camera_id: str, exclude_journey_id: str, *,
+                       agree_rel: float, newest: int) -> StoredCalibration | None:
+    """The camera's stored calibration, not counting this journey's own (so that a re-run of a
+    journey calibrates itself again, exactly as the first run did). Only the camera's newest
+    epoch counts: its registered calibration as given, or else the ``consensus`` of its
+    ``newest`` newest self-calibrations (``Settings.calibration_consensus_newest``)."""
+    epoch = current_epoch(session, camera_id)
+    if epoch is None:
+        return None
+    registered = registered_row(session, camera_id, epoch)
+    if registered is not None:
+        return StoredCalibration(stored_camera(registered), "registered", epoch)
+    rows = epoch_self_rows(session, camera_id, epoch, exclude_journey_id, newest)
+    camera = consensus([stored_camera(r) for r in rows], agree_rel)[0]
+    return StoredCalibration(camera, "consensus", epoch) if camera is not None else None
+
+
 def camera_calibration(session: Session, camera_id: str, exclude_journey_id: str, *,
                        agree_rel: float, newest: int) -> CameraModel | None:
-    """The camera's stored calibration, not counting this journey's own (so that a re-run of a
-    journey calibrates itself again, exactly as the first run did): the ``consensus`` of its
-    ``newest`` newest stored self-calibrations (``Settings.calibration_consensus_newest``)."""
-    rows = session.scalars(
-        select(CalibrationRow)
-        .where(CalibrationRow.camera_id == camera_id,
-               CalibrationRow.journey_id != exclude_journey_id)
-        .order_by(CalibrationRow.created_at.desc(), CalibrationRow.id.desc())
-        .limit(newest)
-    ).all()
-    return consensus([stored_camera(r) for r in rows], agree_rel)[0]
+    """``stored_calibration``'s camera, or None."""
+    stored = stored_calibration(session, camera_id, exclude_journey_id, agree_rel=agree_rel,
+                                newest=newest)
+    return stored.camera if stored is not None else None
 
 
 def stored_camera(row: CalibrationRow) -> CameraModel:
@@ -171,6 +243,9 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     if row is None:
         return False
     session.execute(delete(JourneySignRow).where(JourneySignRow.journey_id == journey_id))
+    # A re-run keeps its calibration in the epoch it was made in; a new one joins the newest.
+    epoch = session.scalar(select(CalibrationRow.epoch).where(
+        CalibrationRow.journey_id == journey_id).order_by(CalibrationRow.id.desc()).limit(1))
     session.execute(delete(CalibrationRow).where(CalibrationRow.journey_id == journey_id))
     boxes = {(d.frame_id, d.track_id): [d.x1, d.y1, d.x2, d.y2] for d in journey.detections}
     session.add_all(
@@ -189,9 +264,12 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     calib = result.calibration
     if calib.source == "self":
         cam = calib.camera
+        if epoch is None:
+            epoch = current_epoch(session, journey.camera_id) or 1
         session.add(CalibrationRow(
-            camera_id=journey.camera_id, journey_id=journey_id, width=cam.width, height=cam.height,
-            **cam.params(), n_images=calib.n_images, n_registered=calib.n_registered,
+            camera_id=journey.camera_id, journey_id=journey_id, source="self", epoch=epoch,
+            width=cam.width, height=cam.height, **cam.params(), **_sigma_columns(calib),
+            n_images=calib.n_images, n_registered=calib.n_registered,
             reprojection_error_px=_finite_or_none(calib.reprojection_error_px),
             rotation_deg=float(calib.rotation_deg)))
     now = utc_now()
@@ -201,5 +279,15 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     row.calibration_source = calib.source
     row.timings_s = {k: _finite_or_none(v) for k, v in timings_s.items()}
     row.report = [r.to_json() for r in result.report]
+    row.message = None
+    row.image_width, row.image_height = journey.image_width, journey.image_height
     row.finished_at = row.heartbeat_at = now
     return True
+
+
+def _sigma_columns(calib) -> dict[str, float | None]:
+    """Stage 2's sigma of each parameter it gave one for (``Calibration.intrinsics_std``)."""
+    std = tuple(calib.intrinsics_std or ())
+    if len(std) != len(INTRINSICS_STD):
+        return {}
+    return {f"sigma_{k}": _finite_or_none(v) for k, v in zip(INTRINSICS_STD, std)}

@@ -120,7 +120,7 @@ def test_journeys_page_lists_filters_and_paginates(client, stack):
     progress = client.get(f"/admin/journeys/progress.json?ids={running},{done}").json()
     assert progress[running]["progress"] == pytest.approx(0.4)
     assert progress[done] == {"status": "done", "stage": "done", "progress": 1.0, "error": None,
-                              "n_signs": 2}
+                              "message": None, "n_signs": 2}
 
 
 def test_journey_page_shows_track_signs_calibration_and_crops(client, stack):

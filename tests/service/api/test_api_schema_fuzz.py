@@ -84,7 +84,9 @@ def _seed(stack: Stack, app: FastAPI) -> Target:
     with session_scope(stack.url) as session:
         sign_id = session.scalars(select(MapSignRow.id).where(
             MapSignRow.lat_deg.between(world.lat0 - 0.01, world.lat0 + 0.01))).first()
-    return Target(stack, app, keys, {"journey_id": journey_id, "sign_id": sign_id})
+    # The factory bundle's camera (its journey's), so that GET /cameras/{camera_id} answers 200.
+    return Target(stack, app, keys, {"journey_id": journey_id, "sign_id": sign_id,
+                                     "camera_id": "test-cam"})
 
 
 def _journey_data(stack: Stack):

@@ -178,17 +178,20 @@ def _new_camera_files() -> dict[str, bytes]:
     return {**bf.valid_files(), "manifest.json": bf.manifest_bytes(camera_id=secrets.token_hex(6))}
 
 
-def test_run_journey_records_the_pipelines_reason(stack):
-    """The factory bundle is a straight road and the camera is unknown: the pipeline refuses it."""
+def test_run_journey_without_a_turn_waits_for_its_camera(stack):
+    """The factory bundle is a straight road and the camera is unknown: the pipeline cannot
+    calibrate, and the journey waits for its camera's calibration (tests/service/cameras)."""
     key = stack.key("fleet")
     with stack.client() as client:
         journey_id = upload(client, key, bf_zip(_new_camera_files()))
     run_journey(journey_id, stack.settings)
     row = _journey(stack, journey_id)
-    assert (row.status, row.stage, row.attempts, row.n_signs) == ("failed", "calibrate", 1, None)
-    assert row.error.startswith("the journey has no turn")
+    assert (row.status, row.stage, row.attempts, row.n_signs) == (
+        "queued", "waiting_for_camera", 1, None)
+    assert row.error is None and "the journey has no turn" in row.message
+    assert (row.image_width, row.image_height) == (64, 48)
     assert not storage.work_dir(stack.settings.data_dir, journey_id, 1).exists()
-    run_journey(journey_id, stack.settings)  # finished journeys are not run again
+    run_journey(journey_id, stack.settings)  # a waiting journey is not claimed until woken
     assert _journey(stack, journey_id).attempts == 1
 
 

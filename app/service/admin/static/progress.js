@@ -26,7 +26,7 @@
     row.querySelector(".stage").textContent = p.stage || "";
     row.querySelector(".fill").style.width = `${(p.progress * 100).toFixed(1)}%`;
     row.querySelector(".bar").title = `${Math.round(p.progress * 100)} %`;
-    row.querySelector(".error-cell").textContent = p.error || "";
+    row.querySelector(".error-cell").textContent = p.error || p.message || "";
     row.querySelector(".n-signs").textContent = p.n_signs == null ? "" : p.n_signs;
   }
   setTimeout(poll, 2000);
