@@ -137,6 +137,19 @@ def turn_video_bundle(tmp_path_factory, turn_journey_bundle) -> Path:
                          gps_rate_hz=10.0, clock_error_s=VIDEO_CLOCK_ERROR_S)
 
 
+# KITTI's GPS/INS unit relative to its camera (forward, left, up; metres): 1.09 m behind, 0.25 m
+# left of and 0.72 m below it.
+KITTI_ANTENNA_OFFSET_M = (-1.09, 0.25, -0.72)
+
+
+@pytest.fixture(scope="session")
+def offset_journey_bundle(tmp_path_factory) -> tuple[Path, dict]:
+    """The turn journey's first 80 frames (the turn and 6 signs) with GPS fixes from an antenna at
+    KITTI_ANTENNA_OFFSET_M, declared in the manifest: (bundle.zip, truth.json as a dict)."""
+    return synthetic_journey(tmp_path_factory, "turn-antenna", turns=1, n_frames=80,
+                             gps_antenna_offset_m=KITTI_ANTENNA_OFFSET_M)
+
+
 @pytest.fixture(scope="session")
 def straight_journey_bundle(tmp_path_factory) -> tuple[Path, dict]:
     """A straight journey in another world, filmed by the same camera as the turn journey."""

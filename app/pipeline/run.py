@@ -122,7 +122,8 @@ class Reconstruction:
     Plain data, so the corpus bench can keep it and run only the later stages again with other
     knobs (``signmap bench corpus --replay``). ``xyz_gps`` (N, 3): frame positions in
     ``origin``'s frame, straight lines between fixes; ``xyz_align`` (N, 3): the positions the
-    alignment takes (the smoothing spline's with ``gps_smoothing``). ``tracks`` empty: the
+    alignment takes (the smoothing spline's with ``gps_smoothing``); both the camera's, moved from
+    the GPS antenna when the manifest says where it is. ``tracks`` empty: the
     journey has no sign track, and no ego-motion ran."""
 
     calib: Calibration
@@ -135,6 +136,8 @@ class Reconstruction:
     reports: list[StageReport]
     # Tracks the plan could not triangulate (too few frames), with the reason.
     too_short: tuple[RejectedSign, ...] = ()
+    # What the align stage's report says of the positions (the GPS antenna offset applied).
+    gps_notes: tuple[str, ...] = ()
 
 
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
@@ -160,6 +163,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
                               journey.alt_m if journey.has_altitude else None)
     # Turn finding keeps the straight-line positions it was tuned on; alignment takes the spline's.
     xyz_align = frame_positions(journey, origin, xyz_gps) if config.gps_smoothing else xyz_gps
+    # From the antenna to the camera, before anything looks at the positions.
+    xyz_gps, xyz_align, antenna_notes = _at_camera(journey, xyz_gps, xyz_align)
     journal = _Journal(list(journey.intake))
     the_plan, clock = _plan_stage(journey, xyz_gps, config, known_camera, journal, progress)
     job = _Job(journey, config, workdir, verbose, journal, clock)
@@ -169,7 +174,27 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     calib = _calibrate_stage(job, the_plan, known_camera, ego_sfm)
     poses = _ego_motion_stage(job, the_plan, calib.camera, ego_sfm) if the_plan.tracks else []
     return Reconstruction(calib, the_plan.tracks, poses, xyz_gps, xyz_align, origin,
-                          clock.timings_s, journal.reports, the_plan.too_short)
+                          clock.timings_s, journal.reports, the_plan.too_short, antenna_notes)
+
+
+def _at_camera(journey: Journey, xyz_gps: np.ndarray,
+               xyz_align: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """``xyz_gps`` and ``xyz_align`` moved from the GPS antenna to the camera by the manifest's
+    ``gps_antenna_offset_m`` (``gps_track.camera_positions``; the direction of travel taken from
+    ``xyz_align``), and what the align stage's report says of it; unchanged without one."""
+    offset = journey.gps_antenna_offset
+    if offset is None:
+        return xyz_gps, xyz_align, ()
+    t_s = np.array([f.timestamp_s for f in journey.frames])
+    moved_align, heading_known = gps_track.camera_positions(t_s, xyz_align, offset)
+    moved_gps = moved_align if xyz_gps is xyz_align else gps_track.camera_positions(
+        t_s, xyz_gps, offset, travel_xyz=xyz_align)[0]
+    note = (f"GPS antenna offset applied (manifest): forward {offset.forward_m:+.2f} m, left "
+            f"{offset.left_m:+.2f} m, up {offset.up_m:+.2f} m")
+    if not heading_known:
+        note += (f"; the vehicle never moved faster than {gps_track.MIN_HEADING_SPEED_MPS:g} m/s, "
+                 "so only the up part was applied")
+    return moved_gps, moved_align, (note,)
 
 
 @dataclass(frozen=True)
@@ -328,7 +353,8 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
             on_dropped=lambda p, why: dropped.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
             xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted)
-        entry.take(align.report(len(poses), aligned, untrusted + dropped))
+        entry.take(align.report(len(poses), aligned,
+                                list(recon.gps_notes) + untrusted + dropped))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                                 "(the GPS track does not move enough around the signs)")

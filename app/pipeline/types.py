@@ -100,6 +100,17 @@ class GpsTrack:
     alt_m: np.ndarray
 
 
+@dataclass(frozen=True)
+class AntennaOffset:
+    """Where the GPS antenna sits relative to the camera: the antenna's position minus the
+    camera's, metres, in the vehicle's axes (forward along the direction of travel, left, up; the
+    manifest's ``gps_antenna_offset_m``). ``geometry.gps_track.camera_positions`` applies it."""
+
+    forward_m: float
+    left_m: float
+    up_m: float
+
+
 @dataclass
 class Journey:
     """A validated journey bundle, ready for the pipeline.
@@ -132,6 +143,9 @@ class Journey:
     # What reading the bundle did that the journey's report should show first (a video's frame
     # choice and clock offset), as the stages' own reports.
     intake: tuple["StageReport", ...] = ()
+    # The GPS antenna's position minus the camera's in vehicle axes (forward, left, up), as the
+    # manifest declares it; None: the GPS position is the camera's.
+    gps_antenna_offset: AntennaOffset | None = None
 
     @property
     def has_altitude(self) -> bool:

@@ -118,6 +118,9 @@ def manifest(j: "SynthJourney") -> dict:
     m = {"format": "signmap-journey/1", "camera_id": cfg.effective_camera_id(),
          "vehicle_id": cfg.vehicle_id, "captured_at": cfg.captured_at,
          "camera_prior": None if cfg.camera_prior is None else cfg.camera_prior.params()}
+    if cfg.gps_antenna_offset_declared and any(v != 0.0 for v in cfg.gps_antenna_offset_m):
+        m["gps_antenna_offset_m"] = dict(zip(("forward", "left", "up"),
+                                             map(float, cfg.gps_antenna_offset_m)))
     return {k: v for k, v in m.items() if v is not None or k == "camera_prior"}
 
 

@@ -50,6 +50,11 @@ class SynthConfig:
     gps_bias_sigma_m: float = 0.3
     gps_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gps_alt_sigma_m: float = 0.5
+    # Where the GPS antenna is: its position minus the camera's, metres, in the vehicle's axes
+    # (forward along the road, left, up); the fixes are the antenna's. Declared in the manifest's
+    # gps_antenna_offset_m when gps_antenna_offset_declared and the offset is not zero.
+    gps_antenna_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gps_antenna_offset_declared: bool = True
     det_noise_px: float = 0.7
     low_texture: bool = False
     removed_signs: tuple[str, ...] = ()

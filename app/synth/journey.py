@@ -84,10 +84,23 @@ class SynthJourney:
                                          self.timestamps_s)
 
 
-def _gps(cfg: SynthConfig, profile, road, rngs, timestamps, T):
-    """(fix times or None, true fix positions, noisy fixes), all ENU."""
+def antenna_offset_enu(cfg: SynthConfig, road, s_m: np.ndarray) -> np.ndarray:
+    """(K, 3) the antenna's position minus the camera's in ENU at road arc lengths ``s_m`` (K,):
+    ``cfg.gps_antenna_offset_m`` (forward, left, up) with forward along the road's tangent."""
+    forward_m, left_m, up_m = cfg.gps_antenna_offset_m
+    _, heading = road.at(s_m)
+    forward = np.column_stack([np.cos(heading), np.sin(heading)])
+    left = np.column_stack([-np.sin(heading), np.cos(heading)])
+    return np.column_stack([forward_m * forward + left_m * left, np.full(len(heading), up_m)])
+
+
+def _gps(cfg: SynthConfig, profile, road, rngs, timestamps, T, s_m):
+    """(fix times or None, true fix positions, noisy fixes), all ENU: the antenna's."""
+    with_offset = any(v != 0.0 for v in cfg.gps_antenna_offset_m)
     if cfg.gps_rate_hz is None:
         true_enu, t_fix, rate = T[:, :3, 3], None, cfg.fps
+        if with_offset:
+            true_enu = true_enu + antenna_offset_enu(cfg, road, s_m)
     else:
         if cfg.gps_format != "csv":
             raise ValueError("a GPS rate needs gps_format 'csv' (fixes apart from frames)")
@@ -99,6 +112,8 @@ def _gps(cfg: SynthConfig, profile, road, rngs, timestamps, T):
         xy = road.offset(s_fix, np.full(len(s_fix), cfg.lateral_offset_m))
         true_enu, rate = np.column_stack([xy, np.full(len(s_fix), cfg.cam_height_m)]), \
             cfg.gps_rate_hz
+        if with_offset:
+            true_enu = true_enu + antenna_offset_enu(cfg, road, s_fix)
     # Noise on the receiver's full clock, then the dropouts: the bias drifts on through a gap.
     noisy = noisy_gps(rngs[STREAM_GPS], true_enu, rate, cfg.gps_white_sigma_m,
                       cfg.gps_bias_sigma_m, cfg.gps_bias_m, cfg.gps_alt_sigma_m)
@@ -130,7 +145,7 @@ def generate(cfg: SynthConfig, world: World | None = None) -> SynthJourney:
     T = camera_poses(world.road, s_m, cfg.lateral_offset_m, cfg.cam_height_m,
                      np.radians(cfg.pitch_jitter_deg) * jitter[:, 0],
                      np.radians(cfg.roll_jitter_deg) * jitter[:, 1])
-    t_fix, gps_true, gps_enu = _gps(cfg, profile, world.road, rngs, timestamps, T)
+    t_fix, gps_true, gps_enu = _gps(cfg, profile, world.road, rngs, timestamps, T, s_m)
     origin = frame_at(cfg.origin_lat_deg, cfg.origin_lon_deg, cfg.origin_alt_m)
     lat, lon, alt = origin.to_geodetic(gps_enu)
     scene = build_scene(world, cfg.removed_signs)

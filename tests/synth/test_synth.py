@@ -16,6 +16,7 @@ import pytest
 
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.types import CameraModel
+from app.synth.bundle import manifest as synth_manifest
 from app.synth.camera.render import _sample, camera_rays, first_hits, render_frame
 from app.synth.camera.scene import _atlas, build_scene
 from app.synth.drive.trajectory import noisy_gps
@@ -203,6 +204,36 @@ def test_gps_noise_has_the_configured_spread():
     assert abs(horiz.mean(axis=0)).max() < 0.1
     np.testing.assert_allclose(horiz.std(axis=0), np.hypot(0.3, 0.3), rtol=0.15)
     np.testing.assert_allclose(fixes[:, 2].std(), 0.5, rtol=0.05)
+
+
+@pytest.mark.parametrize("rate_hz", [None, 5.0])
+def test_the_fixes_are_the_antennas_where_it_is_offset(base_cfg, world, rate_hz):
+    # KITTI's GPS/INS unit: 1.09 m behind, 0.25 m left of and 0.72 m below the camera.
+    cfg = base_cfg.replace(n_frames=80, gps_rate_hz=rate_hz,
+                           gps_antenna_offset_m=(-1.09, 0.25, -0.72))
+    j = generate(cfg, world)
+    plain = generate(cfg.replace(gps_antenna_offset_m=(0.0, 0.0, 0.0)), world)
+    if rate_hz is None:  # a fix per frame: where the camera was, at the frame's arc length
+        s_m, camera = j.s_m, j.T_world_cam[:, :3, 3]
+        np.testing.assert_array_equal(plain.gps_true_enu, camera)
+    else:
+        s_m = cfg.speed_profile().s_at(j.gps_timestamps_s)
+        camera = plain.gps_true_enu  # the camera's path at the fixes' times
+    _, heading = world.road.at(s_m)
+    d = j.gps_true_enu - camera
+    forward = d[:, 0] * np.cos(heading) + d[:, 1] * np.sin(heading)
+    left = -d[:, 0] * np.sin(heading) + d[:, 1] * np.cos(heading)
+    np.testing.assert_allclose(np.column_stack([forward, left, d[:, 2]]),
+                               np.tile([-1.09, 0.25, -0.72], (len(d), 1)), atol=1e-9)
+    assert np.ptp(heading) > np.radians(80)  # through the turn
+    # The same noise on top: the fixes moved by exactly the offset.
+    np.testing.assert_allclose(j.gps_enu - plain.gps_enu, d, atol=1e-9)
+    assert synth_manifest(j)["gps_antenna_offset_m"] == {"forward": -1.09, "left": 0.25,
+                                                         "up": -0.72}
+    assert "gps_antenna_offset_m" not in synth_manifest(plain)
+    undeclared = generate(cfg.replace(gps_antenna_offset_declared=False), world)
+    assert "gps_antenna_offset_m" not in synth_manifest(undeclared)
+    np.testing.assert_array_equal(undeclared.gps_enu, j.gps_enu)
 
 
 def test_removed_sign_is_neither_drawn_nor_detected(base_cfg, world):

@@ -2,10 +2,11 @@
 checked strictly (a number must be a JSON number, not a string), so a mistake is reported rather
 than guessed around.
 
-Two optional fields besides the contract's section 1: ``gps_time_offset_s`` (section 1a: seconds
-to add to the camera's time to get GPS time) and ``frame_rate_hz`` (this project's extension:
-frame i was taken at ``captured_at`` + i / ``frame_rate_hz``; it lets frames be placed on a
-``gps.gpx`` track that has not one point per frame)."""
+Optional fields besides the contract's section 1: ``gps_time_offset_s`` (section 1a: seconds to
+add to the camera's time to get GPS time), ``gps_antenna_offset_m`` (section 1b: the GPS antenna's
+position minus the camera's, metres, in vehicle axes) and ``frame_rate_hz`` (this project's
+extension: frame i was taken at ``captured_at`` + i / ``frame_rate_hz``; it lets frames be placed
+on a ``gps.gpx`` track that has not one point per frame)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS, decode_text
 from app.pipeline.bundle.gps import parse_iso_time
-from app.pipeline.types import BundleError, CameraModel
+from app.pipeline.types import AntennaOffset, BundleError, CameraModel
 
 FORMAT = "signmap-journey/1"
 MAX_FRAME_RATE_HZ = 1000.0  # beyond any camera's frame rate; a larger value is a unit mistake
@@ -24,6 +25,9 @@ MAX_GPS_TIME_OFFSET_S = 1e6  # 11 days: more is no clock error but a wrong date
 # them is no camera, and a value such as 1e308 would turn the self-calibration into NaN.
 MAX_PRIOR_PX = 1e6
 MAX_PRIOR_K = 100.0
+# An antenna further than this from the camera along any axis is on no vehicle that carries both: a
+# larger value is a unit mistake (centimetres or millimetres).
+MAX_ANTENNA_OFFSET_M = 10.0
 
 
 class CameraPrior(BaseModel):
@@ -41,6 +45,20 @@ class CameraPrior(BaseModel):
                            cy=self.cy, k1=self.k1, k2=self.k2)
 
 
+class AntennaOffsetIn(BaseModel):
+    """``gps_antenna_offset_m``: the antenna's position minus the camera's, metres, in the vehicle's
+    axes; all three keys are required (a missing one is no zero)."""
+
+    model_config = ConfigDict(extra="ignore", strict=True, allow_inf_nan=False)
+
+    forward: float = Field(ge=-MAX_ANTENNA_OFFSET_M, le=MAX_ANTENNA_OFFSET_M)
+    left: float = Field(ge=-MAX_ANTENNA_OFFSET_M, le=MAX_ANTENNA_OFFSET_M)
+    up: float = Field(ge=-MAX_ANTENNA_OFFSET_M, le=MAX_ANTENNA_OFFSET_M)
+
+    def offset(self) -> AntennaOffset:
+        return AntennaOffset(forward_m=self.forward, left_m=self.left, up_m=self.up)
+
+
 class Manifest(BaseModel):
     model_config = ConfigDict(extra="ignore", strict=True)
 
@@ -53,6 +71,7 @@ class Manifest(BaseModel):
     frame_rate_hz: float | None = Field(None, gt=0, le=MAX_FRAME_RATE_HZ, allow_inf_nan=False)
     gps_time_offset_s: float | None = Field(None, ge=-MAX_GPS_TIME_OFFSET_S,
                                             le=MAX_GPS_TIME_OFFSET_S, allow_inf_nan=False)
+    gps_antenna_offset_m: AntennaOffsetIn | None = None
 
     @field_validator("camera_id", "vehicle_id", "captured_at")
     @classmethod

@@ -364,4 +364,6 @@ def read_bundle(zip_path: Path, extract_dir: Path, *, limits: BundleLimits = Bun
                    gps_noise_m=gps.noise_m, gps_accuracy_m=gps.accuracy_m,
                    gps_fixes=None if gps.fixes is None else GpsTrack(
                        gps.fixes.timestamp_s, gps.fixes.lat_deg, gps.fixes.lon_deg,
-                       gps.fixes.alt_m))
+                       gps.fixes.alt_m),
+                   gps_antenna_offset=m.gps_antenna_offset_m.offset()
+                   if m.gps_antenna_offset_m else None)

@@ -15,7 +15,7 @@ from app.pipeline.bundle import check_bundle, read_bundle
 from app.pipeline.config import BundleLimits
 from app.pipeline.bundle.gps import GpsFixes, interpolate_to_frames
 from app.pipeline.bundle.gps_exif import ExifFix, gps_from_exif
-from app.pipeline.types import BundleError, CameraModel
+from app.pipeline.types import AntennaOffset, BundleError, CameraModel
 from tests.utils import bundle_factory as bf
 
 
@@ -69,6 +69,30 @@ def test_per_frame_positions_and_camera_prior(tmp_path):
     np.testing.assert_allclose(journey.lon_deg, lon, atol=1e-9)
     np.testing.assert_allclose(journey.alt_m, alt, atol=1e-9)
     assert journey.camera_prior == CameraModel(64, 48, 50.0, 51.5, 31.5, 23.5, -0.1, 0.01)
+
+
+def test_the_gps_antenna_offset_reaches_the_journey(tmp_path):
+    assert _read(tmp_path, bf.valid_files()).gps_antenna_offset is None
+    files = bf.valid_files()
+    files["manifest.json"] = bf.manifest_bytes(
+        gps_antenna_offset_m={"forward": -1.09, "left": 0.25, "up": -0.72})
+    assert _read(tmp_path, files).gps_antenna_offset == \
+        AntennaOffset(forward_m=-1.09, left_m=0.25, up_m=-0.72)
+
+
+@pytest.mark.parametrize("offset, detail", [
+    ({"forward": 10.5, "left": 0, "up": 0}, "forward: Input should be less than or equal to 10"),
+    ({"forward": 0, "left": -109, "up": 0}, "left: Input should be greater than or equal to -10"),
+    ({"forward": "1.09", "left": 0, "up": 0}, "forward: Input should be a valid number"),
+    ({"forward": 1.09, "left": 0.25}, "up: Field required"),
+    ({"forward": 0, "left": 0, "up": float("nan")}, "up: Input should be a finite number"),
+    ([-1.09, 0.25, -0.72], ": Input should be a valid dictionary"),
+])
+def test_a_bad_gps_antenna_offset_is_refused_by_name(tmp_path, offset, detail):
+    files = bf.valid_files()
+    files["manifest.json"] = bf.manifest_bytes(gps_antenna_offset_m=offset)
+    assert _error(tmp_path, files).startswith(
+        f"manifest.json is invalid: gps_antenna_offset_m{'.' if detail[0] != ':' else ''}{detail}")
 
 
 def test_altitude_absent_or_partly_empty(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 
 from app.pipeline.bundle import check_bundle, read_bundle
 from app.pipeline.config import BundleLimits
-from app.pipeline.types import BundleError
+from app.pipeline.types import AntennaOffset, BundleError
 from tests.conftest import VIDEO_CLOCK_ERROR_S
 from tests.pipeline.video import bundles
 from tests.utils.journeys import video_journey
@@ -76,6 +76,15 @@ def test_the_worker_keeps_10_frames_a_second_and_says_so(tmp_path):
     # The GPS log starts 2 s before the video on the same clock: frame i is 2 + i/10 s in.
     np.testing.assert_allclose([f.timestamp_s for f in journey.frames[:3]], [2.0, 2.1, 2.2],
                                atol=1e-3)
+
+
+
+def test_a_video_journey_takes_the_manifests_gps_antenna_offset(tmp_path):
+    manifest = {**bundles.MANIFEST, "gps_antenna_offset_m": {"forward": 1.5, "left": 0, "up": 0.3}}
+    data = bundles.bundle({"video.mp4": bundles.tiny_video(), "gps.nmea": bundles.nmea()},
+                          manifest)
+    journey = read_bundle(_write(tmp_path, data), tmp_path / "x")
+    assert journey.gps_antenna_offset == AntennaOffset(forward_m=1.5, left_m=0.0, up_m=0.3)
 
 
 _OFFSET = re.compile(r"the camera's clock is ([-+][\d.]+) s ± ([\d.]+) s off GPS time")

@@ -242,7 +242,9 @@ def read_video(bz: BundleZip, manifest: Manifest, name: str, extract_dir: Path,
                    camera_prior=prior_cam, warnings=warnings, gps_noise_m=frame_gps.noise_m,
                    gps_accuracy_m=frame_gps.accuracy_m, intake=(intake,),
                    gps_fixes=GpsTrack(log.fixes.timestamp_s, log.fixes.lat_deg,
-                                      log.fixes.lon_deg, log.fixes.alt_m))
+                                      log.fixes.lon_deg, log.fixes.alt_m),
+                   gps_antenna_offset=manifest.gps_antenna_offset_m.offset()
+                   if manifest.gps_antenna_offset_m else None)
 
 
 def read_gps_log(bz: BundleZip, name: str, scratch: Path, limits: BundleLimits) -> GpsLog:
