@@ -29,13 +29,10 @@ import pytest
 
 from app.cli import main
 from app.commands.usage import EXIT_OK
-from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
-from tests.e2e.test_fusion_rendered import seed_calibration
 from tests.utils import bundle_factory as bf
 from tests.utils.results.service_support import sign_errors_m, signs_enu
-from tests.utils.stack import (CeleryWorker, Stack, auth, make_settings, poll_journey,
-                               sqlite_stack, upload)
+from tests.utils.stack import auth, processed_by_celery, sqlite_stack
 
 APPLIED = "GPS antenna offset applied (manifest): forward -1.09 m, left +0.25 m, up -0.72 m"
 
@@ -108,21 +105,9 @@ def test_signmap_process_applies_the_declared_offset(offset_journey_bundle, tmp_
 def test_the_service_applies_the_declared_offset(offset_journey_bundle, own_pg_url, redis_url,
                                                  tmp_path):
     bundle, truth = offset_journey_bundle
-    seed_calibration(own_pg_url, truth["camera_id"], CameraModel(**truth["camera"]))
-    stack = Stack("postgres", make_settings(tmp_path / "data", database_url=own_pg_url,
-                                            broker_url=redis_url,
-                                            pipeline=PipelineConfig(reuse_known_calibration=True)))
-    fleet = stack.key("fleet")
-    worker = CeleryWorker(stack.settings, tmp_path / "worker.log")
-    try:
-        with stack.client() as client:
-            journey_id = upload(client, fleet, bundle.read_bytes())
-            body = poll_journey(client, auth(fleet), journey_id,
-                                lambda b: b["status"] in ("done", "failed"), worker=worker)
-            features = client.get(f"/api/v1/journeys/{journey_id}/signs",
-                                  headers=auth(fleet)).json()["features"]
-    finally:
-        worker.stop()
+    body, features = processed_by_celery(bundle.read_bytes(), truth["camera_id"],
+                                         CameraModel(**truth["camera"]), own_pg_url, redis_url,
+                                         tmp_path)
     assert body["status"] == "done", body["error"]
     errors, height = _errors(features, truth)
     print(f"over HTTP: median {np.median(list(errors.values())):.2f} m, max "

@@ -23,14 +23,12 @@ import pytest
 
 from app.cli import main
 from app.commands.usage import EXIT_OK
-from app.pipeline.config import PipelineConfig
 from app.pipeline.detect import DetectorConfig
 from app.pipeline.detect.journey import NO_DETECTOR
 from app.pipeline.types import CameraModel
-from tests.e2e.test_fusion_rendered import seed_calibration
 from tests.pipeline.bundle.detect.oracle import oracle_model, stamp_bundle
 from tests.utils.results.service_support import nearest_sign_errors_m
-from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
+from tests.utils.stack import processed_by_celery
 
 pytestmark = [pytest.mark.slow]
 
@@ -93,22 +91,9 @@ def test_a_journey_without_detections_over_http_with_a_celery_worker(stamped, tu
                                                                       tmp_path):
     bundle, model = stamped
     truth = turn_journey_bundle[1]
-    seed_calibration(own_pg_url, truth["camera_id"], CameraModel(**truth["camera"]))
-    stack = Stack("postgres", make_settings(tmp_path / "data", database_url=own_pg_url,
-                                            broker_url=redis_url,
-                                            pipeline=PipelineConfig(reuse_known_calibration=True),
-                                            detector=DetectorConfig(model=model)))
-    fleet = stack.key("fleet")
-    worker = CeleryWorker(stack.settings, tmp_path / "worker.log")
-    try:
-        with stack.client() as client:
-            journey_id = upload(client, fleet, bundle.read_bytes())
-            body = poll_journey(client, auth(fleet), journey_id,
-                                lambda b: b["status"] in ("done", "failed"), worker=worker)
-            features = client.get(f"/api/v1/journeys/{journey_id}/signs",
-                                  headers=auth(fleet)).json()["features"]
-    finally:
-        worker.stop()
+    body, features = processed_by_celery(bundle.read_bytes(), truth["camera_id"],
+                                         CameraModel(**truth["camera"]), own_pg_url, redis_url,
+                                         tmp_path, detector=DetectorConfig(model=model))
     assert body["status"] == "done", body["error"]
     _check_signs(features, truth)
     assert _detect_stage(body["report"])["summary"].startswith("model oracle.onnx (sha256 ")

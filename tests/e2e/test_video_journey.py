@@ -20,12 +20,10 @@ import pytest
 
 from app.cli import main
 from app.commands.usage import EXIT_OK
-from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
 from tests.conftest import VIDEO_CLOCK_ERROR_S
-from tests.e2e.test_fusion_rendered import seed_calibration
 from tests.utils.results.service_support import sign_errors_m
-from tests.utils.stack import CeleryWorker, Stack, auth, make_settings, poll_journey, upload
+from tests.utils.stack import processed_by_celery
 
 pytestmark = [pytest.mark.slow]
 
@@ -65,21 +63,9 @@ def test_signmap_process_places_a_video_journey(turn_video_bundle, turn_journey_
 def test_a_video_journey_over_http_with_a_celery_worker(turn_video_bundle, turn_journey_bundle,
                                                         own_pg_url, redis_url, tmp_path):
     truth = turn_journey_bundle[1]
-    seed_calibration(own_pg_url, truth["camera_id"], CameraModel(**truth["camera"]))
-    stack = Stack("postgres", make_settings(tmp_path / "data", database_url=own_pg_url,
-                                            broker_url=redis_url,
-                                            pipeline=PipelineConfig(reuse_known_calibration=True)))
-    fleet = stack.key("fleet")
-    worker = CeleryWorker(stack.settings, tmp_path / "worker.log")
-    try:
-        with stack.client() as client:
-            journey_id = upload(client, fleet, turn_video_bundle.read_bytes())
-            body = poll_journey(client, auth(fleet), journey_id,
-                                lambda b: b["status"] in ("done", "failed"), worker=worker)
-            features = client.get(f"/api/v1/journeys/{journey_id}/signs",
-                                  headers=auth(fleet)).json()["features"]
-    finally:
-        worker.stop()
+    body, features = processed_by_celery(turn_video_bundle.read_bytes(), truth["camera_id"],
+                                         CameraModel(**truth["camera"]), own_pg_url, redis_url,
+                                         tmp_path)
     assert body["status"] == "done", body["error"]
     errors = sign_errors_m(features, truth)
     assert len(errors) >= 1 and max(errors.values()) < 1.0, errors

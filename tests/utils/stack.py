@@ -134,3 +134,30 @@ def upload(client, key: str, data: bytes) -> str:
                            files={"bundle": ("journey.zip", data, "application/zip")})
     assert response.status_code == 202, response.text
     return response.json()["id"]
+
+
+def processed_by_celery(data: bytes, camera_id: str, camera, pg_url: str, redis_url: str,
+                        tmp_path: Path, **overrides) -> tuple[dict, list[dict]]:
+    """Upload the bundle ``data`` as a fleet key to PostgreSQL + Redis with a real Celery worker
+    and wait until it ends: (the journey's body, its signs' features). The camera's true
+    calibration ``camera`` is stored and reused (``reuse_known_calibration``): these tests are
+    about the way in, not self-calibration. ``overrides``: more ``Settings``."""
+    from app.pipeline.config import PipelineConfig
+    from tests.e2e.test_fusion_rendered import seed_calibration
+
+    seed_calibration(pg_url, camera_id, camera)
+    stack = Stack("postgres", make_settings(
+        tmp_path / "data", database_url=pg_url, broker_url=redis_url,
+        pipeline=PipelineConfig(reuse_known_calibration=True), **overrides))
+    fleet = stack.key("fleet")
+    worker = CeleryWorker(stack.settings, tmp_path / "worker.log")
+    try:
+        with stack.client() as client:
+            journey_id = upload(client, fleet, data)
+            body = poll_journey(client, auth(fleet), journey_id,
+                                lambda b: b["status"] in ("done", "failed"), worker=worker)
+            features = client.get(f"/api/v1/journeys/{journey_id}/signs",
+                                  headers=auth(fleet)).json()["features"]
+    finally:
+        worker.stop()
+    return body, features
