@@ -161,3 +161,26 @@ def processed_by_celery(data: bytes, camera_id: str, camera, pg_url: str, redis_
     finally:
         worker.stop()
     return body, features
+
+
+def cli_on(stack: Stack, *words: str):
+    """``signmap WORDS`` on the stack's database through the command line's ``main`` in this
+    process (the service's imports take seconds in a new one), with only the stack's SIGNMAP_*
+    environment: a ``subprocess.CompletedProcess`` of its exit code, stdout and stderr."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from app.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, redirect_stdout(out), redirect_stderr(err):
+        for name in [n for n in os.environ if n.startswith("SIGNMAP_")]:
+            mp.delenv(name)
+        for name, value in stack.settings.as_env().items():
+            mp.setenv(name, value)
+        try:
+            code = main(list(words))
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 1
+            print(exc.code if isinstance(exc.code, str) else "", file=err)
+    return subprocess.CompletedProcess(words, code, out.getvalue(), err.getvalue())

@@ -5,27 +5,23 @@ at 0006 (SQLite and PostgreSQL)."""
 
 from __future__ import annotations
 
-import io
-import os
 import re
 import secrets
 import subprocess
 import sys
-from contextlib import redirect_stderr, redirect_stdout
 from datetime import timedelta
 
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import text, update
 
-from app.cli import main
 from app.commands.service import create_service_app
 from app.service.auth import key_sha256
 from app.service.db.models import ApiKeyRow, utc_now
 from app.service.db.session import get_engine, session_scope, temporary_database, upgrade
 from tests.utils.backends import PG_URL
 from tests.utils.paths import REPO
-from tests.utils.stack import Stack, auth, make_settings, settings_env
+from tests.utils.stack import Stack, auth, cli_on, make_settings, settings_env
 
 
 def _keys(stack: Stack, *words: str, own_process: bool = False) -> subprocess.CompletedProcess:
@@ -35,18 +31,7 @@ def _keys(stack: Stack, *words: str, own_process: bool = False) -> subprocess.Co
         return subprocess.run([sys.executable, "-m", "app.cli", "keys", *words], cwd=REPO,
                               env=settings_env(stack.settings), capture_output=True, text=True,
                               timeout=120)
-    out, err = io.StringIO(), io.StringIO()
-    with pytest.MonkeyPatch.context() as mp, redirect_stdout(out), redirect_stderr(err):
-        for name in [n for n in os.environ if n.startswith("SIGNMAP_")]:
-            mp.delenv(name)
-        for name, value in stack.settings.as_env().items():
-            mp.setenv(name, value)
-        try:
-            code = main(["keys", *words])
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else 1
-            print(exc.code if isinstance(exc.code, str) else "", file=err)
-    return subprocess.CompletedProcess(words, code, out.getvalue(), err.getvalue())
+    return cli_on(stack, "keys", *words)
 
 
 def _row(stack: Stack, key: str) -> ApiKeyRow:

@@ -4,32 +4,16 @@ for the service's worker, and what `show` prints."""
 
 from __future__ import annotations
 
-import io
 import json
-import os
 import subprocess
-from contextlib import redirect_stderr, redirect_stdout
 
-import pytest
-
-from app.cli import main
 from tests.service.cameras.conftest import BODY, journey, new_camera, waiting
+from tests.utils.stack import cli_on
 
 
 def _cameras(stack, *words: str) -> subprocess.CompletedProcess:
     """`signmap cameras WORDS` through the command line's ``main``, in the stack's environment."""
-    out, err = io.StringIO(), io.StringIO()
-    with pytest.MonkeyPatch.context() as mp, redirect_stdout(out), redirect_stderr(err):
-        for name in [n for n in os.environ if n.startswith("SIGNMAP_")]:
-            mp.delenv(name)
-        for name, value in stack.settings.as_env().items():
-            mp.setenv(name, value)
-        try:
-            code = main(["cameras", *words])
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else 1
-            print(exc.code if isinstance(exc.code, str) else "", file=err)
-    return subprocess.CompletedProcess(words, code, out.getvalue(), err.getvalue())
+    return cli_on(stack, "cameras", *words)
 
 
 def test_cameras_set_show_and_list(sqlite, tmp_path):
