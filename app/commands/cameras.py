@@ -83,6 +83,11 @@ def _resume(settings, camera_id: str, size: tuple[int, int]) -> None:
 
         queue = CeleryQueue(settings)
     try:
+        reprocess = cameras.reprocess_superseded(settings.effective_database_url, camera_id,
+                                                 queue.submit if queue else None)
+        if reprocess:
+            print(f"{len(reprocess)} done journeys given another calibration of it are queued "
+                  f"to be processed again with it: {', '.join(reprocess)}")
         ids = cameras.wake_waiting(settings.effective_database_url, camera_id, size,
                                    queue.submit if queue else None)
     except Exception as exc:  # noqa: BLE001 - the broker is down: the workers' sweeps wake them

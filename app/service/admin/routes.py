@@ -276,6 +276,10 @@ def register_calibration(request: Request, camera_id: str,
     except Exception:  # the queue is down: they stay waiting, and the workers' sweeps wake them
         log.exception("camera %s: waiting journeys not queued again now", camera_id)
         resumed = []
+    try:
+        camera_jobs.reprocess_superseded(url, camera_id, request.app.state.queue.submit)
+    except Exception:  # the queue is down: they stay done, with a message; register again
+        log.exception("camera %s: journeys not queued for re-processing now", camera_id)
     log.info("camera %s: calibration registered from the dashboard by %r (epoch %d%s); %d "
              "waiting journeys queued again", camera_id, signed_in.principal.name, epoch,
              "" if new else ", unchanged", len(resumed))

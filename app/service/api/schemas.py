@@ -78,14 +78,21 @@ class JourneyOut(BaseModel):
     status: Literal["queued", "running", "done", "failed"]
     stage: str | None = Field(description="pipeline stage running now, or where it failed; "
                                           "'waiting_for_camera' for a queued journey that "
-                                          "waits for its camera's calibration (see `message`)")
+                                          "waits for its camera's calibration, "
+                                          "'reprocessing' for a done one queued again "
+                                          "(see `message`)")
     progress: float = Field(ge=0.0, le=1.0)
     error: str | None = Field(description="why the journey failed")
     message: str | None = Field(
         None, description="while queued with stage 'waiting_for_camera': what it waits for. It "
                           "has no turn to calibrate on and its camera no calibration yet; it "
                           "resumes by itself once the camera has one (a journey of the camera "
-                          "with a turn, or one registered: PUT /cameras/{camera_id}/calibration)")
+                          "with a turn, or one registered: PUT /cameras/{camera_id}/calibration)."
+                          " While queued or running again with a registered calibration that "
+                          "superseded the one it was given: 'reprocessing: camera ID calibration "
+                          "epoch N' (its earlier signs are served until the new run replaces "
+                          "them). After a re-processing that failed: why (its earlier result is "
+                          "kept)")
     calibration: CalibrationOut | None = Field(description="the camera model used, once done")
     calibration_source: str | None = Field(
         description="'self' (this journey calibrated the camera), 'supplied' (an earlier "
@@ -236,7 +243,7 @@ class CameraOut(BaseModel):
         "sigma": {"fx": 1.2, "fy": 1.4, "cx": 0.8, "cy": 0.6, "k1": 0.002, "k2": 0.004},
         "sigma_basis": "standard error of the mean of 3 self-calibrations (their standard "
                        "deviation over sqrt(3))",
-        "journeys": 3, "left_out": [], "waiting": 0,
+        "journeys": 3, "left_out": [], "waiting": 0, "reprocessing": 0,
         "epochs": [{"epoch": 1, "source": "self", "started_at": "2026-11-21T10:01:02Z",
                     "calibration": {"fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9,
                                     "k1": -0.3, "k2": 0.1},
@@ -265,6 +272,11 @@ class CameraOut(BaseModel):
         description="the epoch's journeys whose self-calibration disagreed, and why")
     waiting: int = Field(description="journeys queued with stage waiting_for_camera: no turn, "
                                      "and no calibration of this camera yet")
+    reprocessing: int = Field(0, description="journeys queued or running again (stage "
+                                             "`reprocessing`, then the pipeline's) with the "
+                                             "registered calibration that superseded the one "
+                                             "they were given; they serve their earlier signs "
+                                             "until the new run replaces them")
     epochs: list[CameraEpochOut] = Field(description="oldest first; the last is the current")
 
 
@@ -274,3 +286,8 @@ class CameraRegistered(CameraOut):
                                         "nothing changed")
     resumed: list[str] = Field(description="journeys that were waiting for this camera and are "
                                            "queued again")
+    reprocess_queued: list[str] = Field(
+        [], description="done journeys that were given a calibration of this camera other than "
+                        "the registered one (not self-calibrated, frames of its size), queued "
+                        "now to be processed again with it; empty when nothing is left to "
+                        "re-process (the same registration again)")

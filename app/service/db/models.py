@@ -7,7 +7,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from sqlalchemy import (JSON, CheckConstraint, DateTime, Float, ForeignKey, Index, Integer, String,
-                        Text, TypeDecorator, UniqueConstraint, text)
+                        Text, TypeDecorator, UniqueConstraint, and_, or_, text)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from app.pipeline.bundle.detections import MAX_CLASS_CHARS
@@ -18,6 +18,8 @@ STATUSES = ("queued", "running", "done", "failed")
 # calibrate on and its camera none yet (``jobs.cameras``). Claimed only once woken.
 WAITING_FOR_CAMERA = "waiting_for_camera"
 CALIBRATION_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2")
+# The stage of a done journey queued again to be re-processed with its camera's newer calibration.
+REPROCESSING = "reprocessing"
 
 
 def utc_now() -> datetime:
@@ -111,6 +113,10 @@ class JourneyRow(Base):
     # Its frames' size, once a run has read them (done or waiting; 0008).
     image_width: Mapped[int | None] = mapped_column(Integer)
     image_height: Mapped[int | None] = mapped_column(Integer)
+    # While queued or running again with a registered calibration that superseded the one it was
+    # given: that calibration's epoch (``jobs.cameras.reprocess_superseded``; 0009). Its earlier
+    # signs are served meanwhile (``serves_result``).
+    reprocess_epoch: Mapped[int | None] = mapped_column(Integer)
 
 
 class JourneySignRow(Base):
@@ -248,3 +254,11 @@ class CoverageRow(Base):
     min_lon_deg: Mapped[float | None] = mapped_column(Float)
     max_lat_deg: Mapped[float | None] = mapped_column(Float)
     max_lon_deg: Mapped[float | None] = mapped_column(Float)
+
+
+def serves_result():
+    """A journey whose signs count (in the map's fusion and its reads): done, or done before and
+    being re-processed now (``JourneyRow.reprocess_epoch``) until the new run replaces them."""
+    return or_(JourneyRow.status == "done",
+               and_(JourneyRow.reprocess_epoch.is_not(None),
+                    JourneyRow.status.in_(("queued", "running"))))

@@ -10,7 +10,8 @@ from sqlalchemy import Select, and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from app.geojson import sign_feature
-from app.service.db.models import JourneyRow, JourneySignRow, MapSignMemberRow, MapSignRow
+from app.service.db.models import (JourneyRow, JourneySignRow, MapSignMemberRow, MapSignRow,
+                                   serves_result)
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ def _in_bbox(dialect: str, bbox: BBox):
 
 def map_signs_query(dialect: str, bbox: BBox, cls: str | None = None, limit: int = 1000) -> Select:
     query = (select(JourneySignRow).join(JourneyRow, JourneyRow.id == JourneySignRow.journey_id)
-             .where(JourneyRow.status == "done", _in_bbox(dialect, bbox))
+             .where(serves_result(), _in_bbox(dialect, bbox))
              .order_by(JourneySignRow.id).limit(limit))
     return query if cls is None else query.where(JourneySignRow.cls == cls)
 

@@ -1,7 +1,8 @@
 """What is known of a camera, as GET /api/v1/cameras/{camera_id}, the dashboard's Cameras page and
 ``signmap cameras show`` give it: its calibration now (what its later journeys are given,
 ``state.stored_calibration``) with sigmas, the journeys in it and those left out with the reason,
-the journeys waiting for it, and its epochs (docs/decisions/registered-calibration.md).
+the journeys waiting for it, those being re-processed with a newer registered calibration, and its
+epochs (docs/decisions/registered-calibration.md).
 
 Per epoch: a registered calibration is the epoch's as given; its sigma is the one given (0 where
 none was). Otherwise the epoch's calibration is the consensus of its newest self-calibrations
@@ -53,6 +54,7 @@ class CameraView:
     waiting: int
     sizes: list[tuple[int, int]]  # of its journeys' frames, newest first
     owners: dict[str, int | None]  # journey id -> owner key id, of the calibrations' journeys
+    reprocessing: int = 0  # journeys queued or running again with a newer registered calibration
 
     @property
     def current(self) -> EpochView | None:
@@ -157,6 +159,9 @@ def camera_view(session: Session, camera_id: str, settings: Settings) -> CameraV
     waiting = session.scalar(select(func.count()).select_from(JourneyRow).where(
         JourneyRow.camera_id == camera_id, JourneyRow.status == "queued",
         JourneyRow.stage == WAITING_FOR_CAMERA))
+    reprocessing = session.scalar(select(func.count()).select_from(JourneyRow).where(
+        JourneyRow.camera_id == camera_id, JourneyRow.reprocess_epoch.is_not(None),
+        JourneyRow.status.in_(("queued", "running"))))
     journey_ids = [r.journey_id for r in rows if r.journey_id]
     owners = dict(session.execute(select(JourneyRow.id, JourneyRow.owner_key_id)
                                   .where(JourneyRow.id.in_(journey_ids))).all()) if journey_ids else {}
@@ -165,7 +170,8 @@ def camera_view(session: Session, camera_id: str, settings: Settings) -> CameraV
         by_epoch.setdefault(row.epoch, []).append(row)
     epochs = [_epoch(e, by_epoch[e], settings.calibration_flag_rel,
                      settings.calibration_consensus_newest) for e in sorted(by_epoch)]
-    return CameraView(camera_id, epochs, waiting, list(dict.fromkeys(sizes)), owners)
+    return CameraView(camera_id, epochs, waiting, list(dict.fromkeys(sizes)), owners,
+                      reprocessing)
 
 
 def _sigma_json(sigma: dict[str, float | None] | None) -> dict[str, float | None] | None:
@@ -198,6 +204,7 @@ def to_json(view: CameraView, visible: Visible = lambda _owner: True, admin: boo
         "left_out": [{"journey_id": journey(row), "reason": reason}
                      for row, reason in (current.left_out if current else [])],
         "waiting": view.waiting,
+        "reprocessing": view.reprocessing,
         "epochs": [{
             "epoch": e.epoch, "source": e.source, "started_at": e.started_at,
             "calibration": e.camera.params() if e.camera is not None else None,

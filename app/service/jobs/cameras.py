@@ -23,6 +23,18 @@ run once at a time, as every run claims it first (``state.claim``). A woken jour
 after the commit (``_submit`` says why); one whose submit failed waits again, and a process that
 dies in between leaves it queued, as an upload that died before its submit (the embedded
 worker's sweep submits every queued journey; Celery has no such sweep).
+
+* **Re-processing** (``reprocess_superseded``): a registered calibration supersedes the one the
+  camera's done journeys were given. Those journeys (calibration source "supplied", frames of the
+  registration's size, a calibration other than the registered one) go back to ``queued`` with
+  stage ``reprocessing``, a ``message`` naming the epoch and ``reprocess_epoch`` set, and are
+  submitted to the normal queue; each run claims them as any other (``state.claim``). Until the
+  new run stores its result they keep serving their earlier signs (``models.serves_result``); a
+  re-processing run that fails leaves the earlier result done (``state.fail``). Selected and
+  marked in the camera's lock, so two triggers queue a journey once; a registration of the same
+  values finds nothing left to re-process. A run that stores a result with a calibration
+  registered meanwhile superseded checks itself the same way (``jobs.run``). Self-calibrated
+  journeys keep their own result, and a moving consensus of self-calibrations triggers nothing.
 """
 
 from __future__ import annotations
@@ -39,8 +51,8 @@ from sqlalchemy.orm import Session
 
 from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS
 from app.pipeline.types import StageReport
-from app.service.db.models import (CALIBRATION_PARAMS, WAITING_FOR_CAMERA, CalibrationRow,
-                                   JourneyRow)
+from app.service.db.models import (CALIBRATION_PARAMS, REPROCESSING, WAITING_FOR_CAMERA,
+                                   CalibrationRow, JourneyRow)
 from app.service.db.session import session_scope
 from app.service.jobs import state
 from app.settings import Settings
@@ -349,3 +361,64 @@ def wake_calibrated(url: str, settings: Settings, submit: Submit | None) -> list
         if size in sizes[camera_id] or None in sizes[camera_id]:
             woken += wake_waiting(url, camera_id, size, submit)
     return woken
+
+
+def reprocess_message(camera_id: str, epoch: int) -> str:
+    return f"reprocessing: camera {camera_id} calibration epoch {epoch}"
+
+
+def _used(calibration: dict | None, row: CalibrationRow) -> bool:
+    """Whether a journey's stored calibration (``JourneyRow.calibration``) is ``row``'s."""
+    return calibration is not None and all(
+        k in calibration and abs(float(calibration[k]) - getattr(row, k))
+        <= 1e-9 * max(1.0, abs(getattr(row, k))) for k in CALIBRATION_PARAMS)
+
+
+def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
+                         journey_id: str | None = None) -> list[str]:
+    """Queue again the camera's done journeys that were given a calibration its newest epoch's
+    registered one supersedes (calibration source "supplied", frames of its size, another
+    calibration), or only ``journey_id`` among them; submit them after the commit (None: the
+    embedded worker's sweep does). Nothing when the newest epoch has no registered calibration:
+    a consensus of self-calibrations that moves triggers nothing. Returns their ids."""
+    with camera_session(url, camera_id) as session:
+        epoch = state.current_epoch(session, camera_id)
+        registered = state.registered_row(session, camera_id, epoch) if epoch else None
+        if registered is None:
+            return []
+        where = [JourneyRow.camera_id == camera_id, JourneyRow.status == "done",
+                 JourneyRow.calibration_source == "supplied",
+                 JourneyRow.image_width == registered.width,
+                 JourneyRow.image_height == registered.height]
+        if journey_id is not None:
+            where.append(JourneyRow.id == journey_id)
+        candidates = session.execute(select(JourneyRow.id, JourneyRow.calibration)
+                                     .where(*where)).all()
+        ids = sorted(i for i, calibration in candidates if not _used(calibration, registered))
+        if ids:
+            ids = sorted(session.scalars(
+                update(JourneyRow).where(JourneyRow.id.in_(ids), JourneyRow.status == "done")
+                .values(status="queued", stage=REPROCESSING, progress=0.0,
+                        message=reprocess_message(camera_id, epoch), reprocess_epoch=epoch)
+                .returning(JourneyRow.id)))
+    if not ids:
+        return []
+    log.info("camera %s epoch %d: %d journeys queued for re-processing: %s", camera_id, epoch,
+             len(ids), ", ".join(ids))
+    for i, queued_id in enumerate(ids if submit is not None else []):
+        try:
+            submit(queued_id)
+        except Exception:
+            # Not queued: done again with the earlier result; the same registration again (or
+            # the journey's Retry of the camera) queues them.
+            with session_scope(url) as session:
+                session.execute(
+                    update(JourneyRow).where(JourneyRow.id.in_(ids[i:]),
+                                             JourneyRow.status == "queued",
+                                             JourneyRow.stage == REPROCESSING)
+                    .values(status="done", stage="done", progress=1.0, reprocess_epoch=None,
+                            message=(f"not re-processed with camera {camera_id}'s calibration "
+                                     f"epoch {epoch}: the job queue could not be reached; "
+                                     f"register the calibration again to queue it")))
+            raise
+    return ids

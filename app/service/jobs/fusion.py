@@ -32,7 +32,7 @@ from app.service.jobs import state
 from app.service.db.session import session_scope
 from app.service.db.models import (JourneyRow, CoverageRow,
                                 JourneySignRow, MapSignRow,
-                                MapSignMemberRow, utc_now)
+                                MapSignMemberRow, serves_result, utc_now)
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -214,7 +214,7 @@ def fusion_session(url: str) -> Iterator[Session]:
 def _done_signs(session: Session, where) -> dict[str, tuple[JourneySignRow, JourneyRow]]:
     rows = session.execute(select(JourneySignRow, JourneyRow)
                            .join(JourneyRow, JourneyRow.id == JourneySignRow.journey_id)
-                           .where(JourneyRow.status == "done", where)).all()
+                           .where(serves_result(), where)).all()
     return {s.id: (s, j) for s, j in rows}
 
 
@@ -243,7 +243,7 @@ def _coverages(session: Session, signs: list[JourneySign], reach_m: float
                ) -> list[JourneyCoverage]:
     box = Region.around([s.lat_deg for s in signs], [s.lon_deg for s in signs], reach_m)
     rows = session.execute(select(CoverageRow).join(JourneyRow).where(
-        JourneyRow.status == "done", CoverageRow.min_lat_deg <= box.max_lat,
+        serves_result(), CoverageRow.min_lat_deg <= box.max_lat,
         CoverageRow.max_lat_deg >= box.min_lat, CoverageRow.min_lon_deg <= box.max_lon,
         CoverageRow.max_lon_deg >= box.min_lon)).scalars().all()
     detected: dict[str, set[str]] = {}

@@ -1,7 +1,8 @@
 """The one journey job, run alike by the Celery task and by the embedded worker.
 
 A journey without a turn whose camera has no calibration does not fail: it waits for its camera
-(``jobs.cameras``). A journey that self-calibrated wakes the journeys waiting for its camera."""
+(``jobs.cameras``). A journey that self-calibrated wakes the journeys waiting for its camera; one
+given a calibration that a registration superseded while it ran is queued again with the new one."""
 
 from __future__ import annotations
 
@@ -120,6 +121,8 @@ def run_journey(journey_id: str, settings: Settings,
                  result.timings_s)
         if result.calibration.source == "self":
             _wake(url, camera_id, size, submit)
+        elif result.calibration.source == "supplied":
+            _reprocess_if_superseded(url, camera_id, journey_id, submit)
     except Superseded:
         log.warning("journey %s: attempt %d was superseded by a newer run; its result is dropped",
                     journey_id, attempt)
@@ -159,6 +162,18 @@ def _wake(url: str, camera_id: str, size: tuple[int, int],
     except Exception:
         log.exception("camera %s: its waiting journeys could not be woken now; a sweep will",
                       camera_id)
+
+
+def _reprocess_if_superseded(url: str, camera_id: str, journey_id: str,
+                             submit: Callable[[str], None] | None) -> None:
+    """A calibration registered while this run used the camera's earlier one: the journey is
+    queued again with it (``cameras.reprocess_superseded``). The journey is done whatever
+    happens here."""
+    try:
+        cameras.reprocess_superseded(url, camera_id, submit, journey_id=journey_id)
+    except Exception:
+        log.exception("journey %s: not queued again for camera %s's newer calibration",
+                      journey_id, camera_id)
 
 
 def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str,

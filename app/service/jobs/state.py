@@ -102,11 +102,20 @@ def fail(session: Session, journey_id: str, attempt: int, stage: str | None, rea
          report: list[StageReport] | None = None) -> bool:
     """Mark this run's journey failed at ``stage`` (None: not a pipeline stage) with ``reason`` and
     the reports of the stages that ran (None: the pipeline gave none, e.g. an internal error);
-    False if this run lost the job."""
+    a journey being re-processed is done again with its earlier result instead, ``message``
+    saying why. False if this run lost the job."""
     values: dict = {"status": "failed", "error": reason, "finished_at": utc_now(),
                     "report": None if report is None else [r.to_json() for r in report]}
     if stage is not None:
         values["stage"] = stage[:64]
+    epoch = session.scalar(select(JourneyRow.reprocess_epoch).where(_mine(journey_id, attempt)))
+    if epoch is not None:
+        # A re-processing that failed: the earlier result stays, done, and says why.
+        at = f" at {stage}" if stage else ""
+        values = {"status": "done", "stage": "done", "progress": 1.0, "error": None,
+                  "finished_at": values["finished_at"], "reprocess_epoch": None,
+                  "message": f"re-processing with calibration epoch {epoch} failed{at}: "
+                             f"{reason}; the earlier result is kept"[:2000]}
     return session.execute(update(JourneyRow).where(_mine(journey_id, attempt)).values(**values)
                            ).rowcount == 1
 
@@ -280,6 +289,7 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     row.timings_s = {k: _finite_or_none(v) for k, v in timings_s.items()}
     row.report = [r.to_json() for r in result.report]
     row.message = None
+    row.reprocess_epoch = None
     row.image_width, row.image_height = journey.image_width, journey.image_height
     row.finished_at = row.heartbeat_at = now
     return True

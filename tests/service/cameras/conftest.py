@@ -41,11 +41,12 @@ def new_camera() -> str:
     return f"cam-{secrets.token_hex(4)}"
 
 
-def self_calibrated(stack, client, key: str, camera_id: str, fx: float, n_frames: int = 5
-                    ) -> str:
+def self_calibrated(stack, client, key: str, camera_id: str, fx: float, n_frames: int = 5,
+                    source: str = "self") -> str:
     """A journey of ``camera_id`` uploaded with ``key`` and stored as a worker stores one that
     self-calibrated to ``fx`` (fy = fx + 1, ``made_result``'s camera otherwise), flagged against
-    the camera's stored calibration as the job flags it. Returns its id."""
+    the camera's stored calibration as the job flags it; ``source`` "supplied": one given that
+    calibration instead. Returns its id."""
     from app.pipeline.bundle import read_bundle
 
     files = camera_files(camera_id, n_frames)
@@ -62,7 +63,8 @@ def self_calibrated(stack, client, key: str, camera_id: str, fx: float, n_frames
                                           newest=settings.calibration_consensus_newest)
     with session_scope(stack.url) as session:
         assert fusion.store_journey(session, journey_id, attempt, journey,
-                                    made_result([("0", "stop", 49.0112, 8.4185, 114.0)], fx=fx),
+                                    made_result([("0", "stop", 49.0112, 8.4185, 114.0)], source,
+                                                fx=fx),
                                     {"total_s": 1.0}, stored.camera if stored else None,
                                     settings, stored.source if stored else None)
     return journey_id

@@ -88,7 +88,10 @@ def get_camera(camera_id: CameraId, who: Fleet, session: SessionDep,
                         "self-calibration that disagrees with it is flagged on that journey "
                         "(`calibration_flag`) and listed in `left_out`. The camera's journeys "
                         "waiting for a calibration (stage `waiting_for_camera`) are queued again "
-                        "(`resumed`). The same values again change nothing (`new_epoch` false). "
+                        "(`resumed`), and its done journeys that were given another calibration "
+                        "of it (not self-calibrated, frames of its size) are processed again with "
+                        "this one (`reprocess_queued`, `reprocessing`), serving their earlier "
+                        "signs until then. The same values again change nothing (`new_epoch` false). "
                         "A camera with no journey yet may be registered too.",
             responses={400: {"model": ErrorOut, "description": "the body is not JSON"},
                        422: {"model": ErrorOut, "description": "a value that is no camera, or "
@@ -108,6 +111,12 @@ def put_calibration(request: Request, camera_id: CameraId, body: cameras.Registr
     except Exception:  # the queue is down: they stay waiting, and the workers' sweeps wake them
         log.exception("camera %s: waiting journeys not queued again now", camera_id)
         resumed = []
+    try:
+        reprocess = cameras.reprocess_superseded(url, camera_id, request.app.state.queue.submit)
+    except Exception:  # the queue is down: they stay done, with a message; PUT again to queue
+        log.exception("camera %s: journeys not queued for re-processing now", camera_id)
+        reprocess = []
     with session_scope(url) as session:
         answer = _view(session, camera_id, who, settings)
-    return {**answer, "registered_epoch": epoch, "new_epoch": new, "resumed": resumed}
+    return {**answer, "registered_epoch": epoch, "new_epoch": new, "resumed": resumed,
+            "reprocess_queued": reprocess}
