@@ -87,6 +87,12 @@ class Settings(BaseSettings):
     # changed (another lens under the same id) is the stored one again from its 3rd-4th journey.
     calibration_consensus_newest: int = Field(
         7, ge=1, description="the camera's newest self-calibrations that vote on its stored one")
+    # Two: a single accepted self-calibration is wrong 1-2 times in 50
+    # (docs/decisions/camera-calibration-consensus.md), two independent ones agreeing rarely.
+    calibration_epoch_confirm: int = Field(
+        2, ge=2, description="a camera's newest self-calibrations that, agreeing with each other "
+                             "and each disagreeing with its epoch's calibration, start a new "
+                             "epoch (a lens change)")
 
     # Map reads (see docs/service.md, "Map at scale").
     map_read_concurrency: int = Field(

@@ -222,7 +222,8 @@ class LeftOutOut(BaseModel):
 
 
 class CameraEpochOut(BaseModel):
-    epoch: int = Field(description="1, 2, ...; a registered calibration starts a new one")
+    epoch: int = Field(description="1, 2, ...; a registered calibration or a lens change starts "
+                                   "a new one")
     source: Literal["self", "registered"] = Field(
         description="'registered': an admin gave the epoch's calibration; 'self': its journeys "
                     "calibrated the camera")
@@ -232,6 +233,13 @@ class CameraEpochOut(BaseModel):
     journeys: int = Field(description="the journeys in the epoch's calibration")
     self_calibrations: int = Field(description="the epoch's self-calibrations, all")
     registered_by: str | None = Field(None, description="admin callers only: the key's name")
+    reason: str | None = Field(
+        None, description="why the epoch started: 'calibration registered', the camera's first "
+                          "calibration, or a lens change (frames of another size, or journeys "
+                          "that agree with each other and differ from the older epoch)")
+    first_journey_id: str | None = Field(
+        None, description="its first journey (a lens change's; null for a registered epoch "
+                          "before any journey, or a journey of another fleet)")
 
 
 class CameraOut(BaseModel):

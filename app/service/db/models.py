@@ -146,7 +146,8 @@ class JourneySignRow(Base):
 class CalibrationRow(Base):
     """A calibration of a camera: a journey's successful self-calibration (``source`` 'self',
     ``journey_id`` set) or one an admin registered ('registered', no journey). A registered one
-    starts a new ``epoch`` of the camera; a self-calibration joins the newest. The camera's later
+    starts a new ``epoch`` of the camera, and so does a lens change (``epoch_reason``); a
+    self-calibration otherwise joins the newest. The camera's later
     journeys get its newest epoch's registered calibration as given, or else what most of that
     epoch's self-calibrations agree on (``jobs.state.stored_calibration``;
     docs/decisions/registered-calibration.md)."""
@@ -190,6 +191,8 @@ class CalibrationRow(Base):
     rotation_deg: Mapped[float | None] = mapped_column(Float)
     # Registered calibrations only: the key's name that registered it.
     registered_by: Mapped[str | None] = mapped_column(String(200))
+    # The first self-calibration of an epoch a lens change started: why (migration 0010).
+    epoch_reason: Mapped[str | None] = mapped_column(String(500))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
     def params(self) -> dict[str, float]:

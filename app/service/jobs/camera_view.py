@@ -45,6 +45,8 @@ class EpochView:
     members: list[CalibrationRow] = field(default_factory=list)
     considered: list[CalibrationRow] = field(default_factory=list)
     left_out: list[tuple[CalibrationRow, str]] = field(default_factory=list)
+    reason: str | None = None  # why it started (a lens change's ``epoch_reason``)
+    first_journey_id: str | None = None  # a lens change's first journey
 
 
 @dataclass
@@ -115,6 +117,16 @@ def _epoch(epoch: int, rows: list[CalibrationRow], agree_rel: float, newest: int
     selfs = [r for r in rows if r.source == "self"]
     view = EpochView(epoch=epoch, source="registered" if registered else "self",
                      started_at=min(r.created_at for r in rows), rows=rows, registered=registered)
+    started = next((r for r in rows if r.epoch_reason), None)
+    if registered is not None:
+        view.reason = "calibration registered"
+    elif started is not None:
+        view.reason, view.first_journey_id = started.epoch_reason, started.journey_id
+        view.started_at = started.created_at
+    elif epoch == 1:
+        view.reason = "the camera's first calibration"
+    if view.first_journey_id is None and selfs:
+        view.first_journey_id = selfs[0].journey_id
     if registered is not None:
         view.camera = state.stored_camera(registered)
         given = registered.sigma()
@@ -211,5 +223,9 @@ def to_json(view: CameraView, visible: Visible = lambda _owner: True, admin: boo
             "sigma": _sigma_json(e.sigma), "journeys": len(e.members),
             "self_calibrations": sum(r.source == "self" for r in e.rows),
             "registered_by": e.registered.registered_by if e.registered and admin else None,
+            "reason": e.reason,
+            "first_journey_id": (e.first_journey_id
+                                 if e.first_journey_id and visible(view.owners.get(
+                                     e.first_journey_id)) else None),
         } for e in view.epochs],
     }

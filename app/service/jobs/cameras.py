@@ -35,6 +35,9 @@ worker's sweep submits every queued journey; Celery has no such sweep).
   values finds nothing left to re-process. A run that stores a result with a calibration
   registered meanwhile superseded checks itself the same way (``jobs.run``). Self-calibrated
   journeys keep their own result, and a moving consensus of self-calibrations triggers nothing.
+  A lens change (``state.lens_change``) supersedes the old lens's calibration for the journeys
+  uploaded after the new epoch's first journey (docs/decisions/registered-calibration.md, "Lens
+  changes").
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ from sqlalchemy import select, text, update
 from sqlalchemy.orm import Session
 
 from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS
-from app.pipeline.types import StageReport
+from app.pipeline.types import CameraModel, StageReport
 from app.service.db.models import (CALIBRATION_PARAMS, REPROCESSING, WAITING_FOR_CAMERA,
                                    CalibrationRow, JourneyRow)
 from app.service.db.session import session_scope
@@ -277,8 +280,8 @@ def wait_for_camera(url: str, journey_id: str, attempt: int, camera_id: str,
     with camera_session(url, camera_id) as session:
         stored = state.stored_calibration(session, camera_id, journey_id,
                                           agree_rel=settings.calibration_flag_rel,
-                                          newest=settings.calibration_consensus_newest)
-        usable = stored is not None and (stored.camera.width, stored.camera.height) == size
+                                          newest=settings.calibration_consensus_newest, size=size)
+        usable = stored is not None
         if usable:
             mine = state.back_to_queue(session, journey_id, attempt, stage=REQUEUED,
                                        image_size=size)
@@ -350,16 +353,17 @@ def wake_calibrated(url: str, settings: Settings, submit: Submit | None) -> list
         sizes: dict[str, set] = {}
         for camera_id, width, height in waiting:
             sizes.setdefault(camera_id, set()).add((width, height) if width else None)
-        stored = {camera_id: state.stored_calibration(
+        # Per waiting size, the camera's newest epoch of that size (None: its newest epoch).
+        stored = {(camera_id, size): state.stored_calibration(
             session, camera_id, "", agree_rel=settings.calibration_flag_rel,
-            newest=settings.calibration_consensus_newest) for camera_id in sizes}
+            newest=settings.calibration_consensus_newest, size=size)
+            for camera_id in sizes for size in sizes[camera_id]}
     woken: list[str] = []
-    for camera_id, calibration in stored.items():
+    for (camera_id, _size), calibration in stored.items():
         if calibration is None:
             continue
-        size = (calibration.camera.width, calibration.camera.height)
-        if size in sizes[camera_id] or None in sizes[camera_id]:
-            woken += wake_waiting(url, camera_id, size, submit)
+        woken += wake_waiting(url, camera_id, (calibration.camera.width,
+                                               calibration.camera.height), submit)
     return woken
 
 
@@ -374,27 +378,68 @@ def _used(calibration: dict | None, row: CalibrationRow) -> bool:
         <= 1e-9 * max(1.0, abs(getattr(row, k))) for k in CALIBRATION_PARAMS)
 
 
+def _disagrees(calibration: dict | None, camera: CameraModel, agree_rel: float) -> bool:
+    """Whether a journey's stored calibration disagrees with ``camera`` beyond ``agree_rel``."""
+    if calibration is None or not all(k in calibration for k in CALIBRATION_PARAMS):
+        return False
+    given = CameraModel.from_params(camera.width, camera.height,
+                                    {k: float(calibration[k]) for k in CALIBRATION_PARAMS})
+    return state.calibration_agreement(given, camera) > agree_rel
+
+
+def _lens_change_row(session: Session, camera_id: str, epoch: int) -> CalibrationRow | None:
+    """The first self-calibration of ``epoch`` when a lens change started it
+    (``state.lens_change``, or frames of another size); None otherwise."""
+    return session.scalars(select(CalibrationRow).where(
+        CalibrationRow.camera_id == camera_id, CalibrationRow.epoch == epoch,
+        CalibrationRow.epoch_reason.is_not(None))).first()
+
+
 def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
-                         journey_id: str | None = None) -> list[str]:
-    """Queue again the camera's done journeys that were given a calibration its newest epoch's
-    registered one supersedes (calibration source "supplied", frames of its size, another
-    calibration), or only ``journey_id`` among them; submit them after the commit (None: the
-    embedded worker's sweep does). Nothing when the newest epoch has no registered calibration:
-    a consensus of self-calibrations that moves triggers nothing. Returns their ids."""
+                         journey_id: str | None = None,
+                         settings: Settings | None = None) -> list[str]:
+    """Queue again the camera's done journeys that were given a calibration its newest epoch
+    supersedes, or only ``journey_id`` among them; submit them after the commit (None: the
+    embedded worker's sweep does). Returns their ids.
+
+    * A registered epoch: those given a calibration (source "supplied") of its frame size
+      other than the registered one.
+    * An epoch a lens change started (``state.lens_change``): those given a calibration of its
+      frame size that disagrees with the epoch's (beyond ``calibration_flag_rel``: the old
+      lens's) and uploaded after the epoch's first journey; the ones uploaded before were
+      taken with the old lens and keep its calibration. A consensus that moves within the
+      tolerance re-processes nothing.
+    * Otherwise nothing: a consensus of self-calibrations that moves triggers nothing."""
+    settings = settings or Settings()
     with camera_session(url, camera_id) as session:
         epoch = state.current_epoch(session, camera_id)
         registered = state.registered_row(session, camera_id, epoch) if epoch else None
-        if registered is None:
+        lens = _lens_change_row(session, camera_id, epoch) if epoch and not registered else None
+        if registered is None and lens is None:
             return []
+        reference = registered or lens
         where = [JourneyRow.camera_id == camera_id, JourneyRow.status == "done",
                  JourneyRow.calibration_source == "supplied",
-                 JourneyRow.image_width == registered.width,
-                 JourneyRow.image_height == registered.height]
+                 JourneyRow.image_width == reference.width,
+                 JourneyRow.image_height == reference.height]
         if journey_id is not None:
             where.append(JourneyRow.id == journey_id)
-        candidates = session.execute(select(JourneyRow.id, JourneyRow.calibration)
-                                     .where(*where)).all()
-        ids = sorted(i for i, calibration in candidates if not _used(calibration, registered))
+        if registered is not None:
+            candidates = session.execute(select(JourneyRow.id, JourneyRow.calibration)
+                                         .where(*where)).all()
+            ids = sorted(i for i, calibration in candidates
+                         if not _used(calibration, registered))
+        else:
+            first = session.get(JourneyRow, lens.journey_id)
+            stored = state.stored_calibration(
+                session, camera_id, "", agree_rel=settings.calibration_flag_rel,
+                newest=settings.calibration_consensus_newest)
+            where.append(JourneyRow.created_at > first.created_at)
+            candidates = session.execute(select(JourneyRow.id, JourneyRow.calibration)
+                                         .where(*where)).all()
+            ids = sorted(i for i, calibration in candidates
+                         if stored is not None and _disagrees(calibration, stored.camera,
+                                                              settings.calibration_flag_rel))
         if ids:
             ids = sorted(session.scalars(
                 update(JourneyRow).where(JourneyRow.id.in_(ids), JourneyRow.status == "done")

@@ -122,7 +122,8 @@ def store_journey(session: Session, journey_id: str, attempt: int, journey: Jour
                   stored_source: str | None = None) -> bool:
     """In the caller's transaction: the journey's result (``state.store_result``), its coverage
     and its calibration flag. False (nothing written) when this run no longer owns the journey."""
-    if not state.store_result(session, journey_id, attempt, journey, result, timings_s):
+    if not state.store_result(session, journey_id, attempt, journey, result, timings_s,
+                              lens=state.LensRule.of(settings)):
         return False
     row = session.get(JourneyRow, journey_id)
     row.calibration_flag = calibration_flag(known_camera, result, settings.calibration_flag_rel,

@@ -1,7 +1,7 @@
 """The one journey job, run alike by the Celery task and by the embedded worker.
 
-A journey without a turn whose camera has no calibration does not fail: it waits for its camera
-(``jobs.cameras``). A journey that self-calibrated wakes the journeys waiting for its camera; one
+A journey without a turn whose camera has no calibration of its frames' size does not fail: it
+waits for its camera (``jobs.cameras``). A journey that self-calibrated wakes the journeys waiting for its camera; one
 given a calibration that a registration superseded while it ran is queued again with the new one."""
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def run_journey(journey_id: str, settings: Settings,
                 raise Superseded(journey_id)
 
     stage = "extract"
-    size, other_size = (0, 0), None
+    size = (0, 0)
     try:
         try:
             # Into this worker's own scratch (an object store) or read in place (data_dir/bundles).
@@ -98,12 +98,19 @@ def run_journey(journey_id: str, settings: Settings,
         progress("extract", 0.0, f"{len(journey.frames)} frames")
         size = (journey.image_width, journey.image_height)
         if known_camera is not None and (known_camera.width, known_camera.height) != size:
-            # Not this journey's camera as far as the pixels go (issue 66's lens changes are
-            # not made yet): it calibrates itself, or fails saying why.
-            other_size = f"{known_camera.width}x{known_camera.height}"
-            log.warning("journey %s: camera %s's stored calibration is for %s frames, this "
-                        "journey's are %dx%d: not used", journey_id, camera_id, other_size, *size)
-            known_camera = stored_calibration = None
+            # The camera's newest epoch is of other frames: its newest epoch of this journey's
+            # size, if any (a lens change, docs/decisions/registered-calibration.md); none: it
+            # calibrates itself (starting an epoch of its size), or waits for its camera.
+            with session_scope(url) as session:
+                stored_calibration = state.stored_calibration(
+                    session, camera_id, journey_id, agree_rel=settings.calibration_flag_rel,
+                    newest=settings.calibration_consensus_newest, size=size)
+            log.info("journey %s: camera %s's newest calibration is for %dx%d frames, this "
+                     "journey's are %dx%d: %s", journey_id, camera_id, known_camera.width,
+                     known_camera.height, *size,
+                     f"epoch {stored_calibration.epoch} is of its size" if stored_calibration
+                     else "no epoch of its size")
+            known_camera = stored_calibration.camera if stored_calibration else None
         stage = "detect"
         journey = apply_detector(journey, settings.detector, bundle_has_detections(bundle),
                                  progress=progress)
@@ -121,26 +128,20 @@ def run_journey(journey_id: str, settings: Settings,
                  result.timings_s)
         if result.calibration.source == "self":
             _wake(url, camera_id, size, submit)
+            _reprocess_if_superseded(url, camera_id, None, submit, settings)
         elif result.calibration.source == "supplied":
-            _reprocess_if_superseded(url, camera_id, journey_id, submit)
+            _reprocess_if_superseded(url, camera_id, journey_id, submit, settings)
     except Superseded:
         log.warning("journey %s: attempt %d was superseded by a newer run; its result is dropped",
                     journey_id, attempt)
     except NoTurnError as exc:
-        if other_size is not None:
-            reason = (f"{exc.finding}; camera {camera_id}'s calibration is for {other_size} "
-                      f"frames and this journey's are {size[0]}x{size[1]}, so it cannot be used "
-                      f"(a camera whose frames change size is not followed yet: upload each "
-                      f"size under a camera_id of its own)")
-            log.info("journey %s: failed at %s: %s", journey_id, exc.stage, reason)
-            _fail(url, journey_id, attempt, exc.stage, reason, exc.report)
-        else:
-            outcome = cameras.wait_for_camera(url, journey_id, attempt, camera_id, size,
-                                              exc.finding, exc.report, settings, submit)
-            log.info("journey %s: no turn and no calibration of camera %s: %s", journey_id,
-                     camera_id, {"waiting": "waits for the camera",
-                                 "requeued": "the camera was calibrated meanwhile; queued again",
-                                 None: "superseded meanwhile"}[outcome])
+        outcome = cameras.wait_for_camera(url, journey_id, attempt, camera_id, size,
+                                          exc.finding, exc.report, settings, submit)
+        log.info("journey %s: no turn and no calibration of camera %s for %dx%d frames: %s",
+                 journey_id, camera_id, *size,
+                 {"waiting": "waits for the camera",
+                  "requeued": "the camera was calibrated meanwhile; queued again",
+                  None: "superseded meanwhile"}[outcome])
     except PipelineError as exc:
         log.info("journey %s: failed at %s: %s", journey_id, exc.stage, exc.reason)
         _fail(url, journey_id, attempt, exc.stage, exc.reason, exc.report)
@@ -164,16 +165,18 @@ def _wake(url: str, camera_id: str, size: tuple[int, int],
                       camera_id)
 
 
-def _reprocess_if_superseded(url: str, camera_id: str, journey_id: str,
-                             submit: Callable[[str], None] | None) -> None:
-    """A calibration registered while this run used the camera's earlier one: the journey is
-    queued again with it (``cameras.reprocess_superseded``). The journey is done whatever
-    happens here."""
+def _reprocess_if_superseded(url: str, camera_id: str, journey_id: str | None,
+                             submit: Callable[[str], None] | None, settings: Settings) -> None:
+    """A calibration registered (or a lens change detected) while this run used the camera's
+    earlier one: the journey is queued again with it; ``journey_id`` None: after this run's
+    self-calibration, the camera's journeys a lens change it confirmed supersedes
+    (``cameras.reprocess_superseded``). The journey is done whatever happens here."""
     try:
-        cameras.reprocess_superseded(url, camera_id, submit, journey_id=journey_id)
+        cameras.reprocess_superseded(url, camera_id, submit, journey_id=journey_id,
+                                     settings=settings)
     except Exception:
         log.exception("journey %s: not queued again for camera %s's newer calibration",
-                      journey_id, camera_id)
+                      journey_id or "(the camera's)", camera_id)
 
 
 def _fail(url: str, journey_id: str, attempt: int, stage: str | None, reason: str,

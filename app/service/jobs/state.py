@@ -7,6 +7,7 @@ then wakes up can therefore never overwrite the run that replaced it.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -19,6 +20,8 @@ from app.pipeline.types import (INTRINSICS_STD, CameraModel, Journey as JourneyD
                                 JourneyResult, StageReport)
 from app.service.db.models import (WAITING_FOR_CAMERA, CalibrationRow, JourneyRow, JourneySignRow,
                                    utc_now)
+
+log = logging.getLogger(__name__)
 
 
 def _stale(cutoff: datetime):
@@ -171,15 +174,29 @@ def registered_row(session: Session, camera_id: str, epoch: int) -> CalibrationR
         CalibrationRow.source == "registered")).first()
 
 
+def epoch_size(session: Session, camera_id: str, epoch: int) -> tuple[int, int] | None:
+    """The frame size of an epoch's calibrations (all of an epoch's are of one size)."""
+    row = session.execute(select(CalibrationRow.width, CalibrationRow.height).where(
+        CalibrationRow.camera_id == camera_id, CalibrationRow.epoch == epoch).limit(1)).first()
+    return (int(row[0]), int(row[1])) if row else None
+
+
 def stored_calibration(session: Session, camera_id: str, exclude_journey_id: str, *,
-                       agree_rel: float, newest: int) -> StoredCalibration | None:
+                       agree_rel: float, newest: int, size: tuple[int, int] | None = None
+                       ) -> StoredCalibration | None:
     """The camera's stored calibration, not counting this journey's own (so that a re-run of a
     journey calibrates itself again, exactly as the first run did). Only the camera's newest
-    epoch counts: its registered calibration as given, or else the ``consensus`` of its
-    ``newest`` newest self-calibrations (``Settings.calibration_consensus_newest``)."""
+    epoch counts (with ``size``: its newest epoch of frames that size; None when it has none):
+    its registered calibration as given, or else the ``consensus`` of its ``newest`` newest
+    self-calibrations (``Settings.calibration_consensus_newest``)."""
     epoch = current_epoch(session, camera_id)
     if epoch is None:
         return None
+    if size is not None:
+        while epoch > 0 and epoch_size(session, camera_id, epoch) != tuple(size):
+            epoch -= 1
+        if epoch == 0:
+            return None
     registered = registered_row(session, camera_id, epoch)
     if registered is not None:
         return StoredCalibration(stored_camera(registered), "registered", epoch)
@@ -244,9 +261,11 @@ def _finite_or_none(value: float | None) -> float | None:
 
 
 def store_result(session: Session, journey_id: str, attempt: int, journey: JourneyData,
-                 result: JourneyResult, timings_s: dict[str, float]) -> bool:
+                 result: JourneyResult, timings_s: dict[str, float],
+                 lens: "LensRule | None" = None) -> bool:
     """Replace the journey's signs and calibration with ``result`` and mark it done, all in the
-    caller's one transaction. False (nothing written) when this run no longer owns the journey."""
+    caller's one transaction. False (nothing written) when this run no longer owns the journey.
+    With ``lens``, a new self-calibration may start a new epoch (``lens_change``)."""
     row = session.scalars(select(JourneyRow).where(_mine(journey_id, attempt)).with_for_update()
                           ).first()
     if row is None:
@@ -273,14 +292,26 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     calib = result.calibration
     if calib.source == "self":
         cam = calib.camera
+        reason = None
         if epoch is None:
             epoch = current_epoch(session, journey.camera_id) or 1
+            size = epoch_size(session, journey.camera_id, epoch)
+            if lens is not None and size is not None and size != (cam.width, cam.height):
+                reason = (f"frames {cam.width}x{cam.height}, epoch {epoch} was "
+                          f"{size[0]}x{size[1]}")
+                epoch += 1
         session.add(CalibrationRow(
             camera_id=journey.camera_id, journey_id=journey_id, source="self", epoch=epoch,
             width=cam.width, height=cam.height, **cam.params(), **_sigma_columns(calib),
             n_images=calib.n_images, n_registered=calib.n_registered,
             reprojection_error_px=_finite_or_none(calib.reprojection_error_px),
-            rotation_deg=float(calib.rotation_deg)))
+            rotation_deg=float(calib.rotation_deg), epoch_reason=reason))
+        if reason is not None:
+            log.warning("camera %s: lens change, calibration epoch %d starts with journey %s: %s",
+                        journey.camera_id, epoch, journey_id, reason)
+        elif lens is not None and epoch == current_epoch(session, journey.camera_id):
+            session.flush()
+            lens_change(session, journey.camera_id, epoch, lens)
     now = utc_now()
     row.status, row.stage, row.progress, row.error = "done", "done", 1.0, None
     row.n_signs = len(result.signs)
@@ -293,6 +324,68 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
     row.image_width, row.image_height = journey.image_width, journey.image_height
     row.finished_at = row.heartbeat_at = now
     return True
+
+
+@dataclass(frozen=True)
+class LensRule:
+    """When a camera's self-calibrations start a new epoch (``lens_change``); from the settings
+    ``calibration_flag_rel``, ``calibration_epoch_confirm``, ``calibration_consensus_newest``."""
+
+    agree_rel: float
+    confirm: int
+    newest: int
+
+    @classmethod
+    def of(cls, settings) -> "LensRule":
+        return cls(settings.calibration_flag_rel, settings.calibration_epoch_confirm,
+                   settings.calibration_consensus_newest)
+
+
+def lens_change(session: Session, camera_id: str, epoch: int, rule: LensRule) -> int | None:
+    """Start a new epoch when the camera's newest ``rule.confirm`` self-calibrations of ``epoch``
+    agree with each other (``calibration_agreement`` within ``rule.agree_rel``) and each
+    disagrees beyond it with the epoch's calibration: its registered one, or the consensus of
+    its older self-calibrations, when that consensus has at least ``rule.confirm`` members (a
+    smaller one the camera's consensus outvotes already). They move to the new epoch (their
+    ``epoch``; the oldest of them gets ``epoch_reason``), so the old epoch never averages them.
+    Returns the new epoch, or None."""
+    newest = epoch_self_rows(session, camera_id, epoch, limit=rule.confirm)
+    if len(newest) < rule.confirm:
+        return None
+    cams = [stored_camera(r) for r in newest]
+    if any(calibration_agreement(a, b) > rule.agree_rel for a in cams for b in cams):
+        return None
+    registered = registered_row(session, camera_id, epoch)
+    if registered is not None:
+        reference, what = stored_camera(registered), f"epoch {epoch}'s registered calibration"
+    else:
+        moved = {r.id for r in newest}
+        older = [stored_camera(r) for r in epoch_self_rows(session, camera_id, epoch,
+                                                           limit=rule.newest + rule.confirm)
+                 if r.id not in moved][:rule.newest]
+        reference, members = consensus(older, rule.agree_rel)
+        if reference is None or len(members) < rule.confirm:
+            return None
+        what = f"epoch {epoch}"
+    if any(calibration_agreement(c, reference) <= rule.agree_rel for c in cams):
+        return None
+    mean = consensus(cams, rule.agree_rel)[0]
+    deviation = {k: getattr(mean, k) / getattr(reference, k) - 1 for k in ("fx", "fy")}
+    deviation |= {"cx": (mean.cx - reference.cx) / reference.width,
+                  "cy": (mean.cy - reference.cy) / reference.height}
+    key = max(deviation, key=lambda k: abs(deviation[k]))
+    of = {"cx": " of the width", "cy": " of the height"}.get(key, "")
+    reason = (f"{len(newest)} journeys agree with each other and differ from {what} by "
+              f"{key} {100 * deviation[key]:+.1f} %{of}")
+    new_epoch = (current_epoch(session, camera_id) or epoch) + 1
+    session.execute(update(CalibrationRow).where(CalibrationRow.id.in_([r.id for r in newest]))
+                    .values(epoch=new_epoch))
+    session.execute(update(CalibrationRow).where(CalibrationRow.id == newest[-1].id)
+                    .values(epoch_reason=reason[:500]))
+    log.warning("camera %s: lens change, calibration epoch %d starts with journey %s (then %s): "
+                "%s", camera_id, new_epoch, newest[-1].journey_id,
+                ", ".join(r.journey_id for r in newest[-2::-1]), reason)
+    return new_epoch
 
 
 def _sigma_columns(calib) -> dict[str, float | None]:
