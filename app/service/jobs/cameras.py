@@ -293,7 +293,7 @@ def wait_for_camera(url: str, journey_id: str, attempt: int, camera_id: str,
                 report=None if report is None else [r.to_json() for r in report])
             outcome = "waiting" if mine else None
     if outcome == "requeued":
-        _submit(url, camera_id, [journey_id], submit)
+        _submit_woken(url, camera_id, [journey_id], submit)
     return outcome
 
 
@@ -316,16 +316,17 @@ def wake_waiting(url: str, camera_id: str, size: tuple[int, int] | None,
     if ids:
         log.info("camera %s is calibrated: %d waiting journeys queued again: %s", camera_id,
                  len(ids), ", ".join(sorted(ids)))
-        _submit(url, camera_id, ids, submit)
+        _submit_woken(url, camera_id, ids, submit)
     return ids
 
 
-def _submit(url: str, camera_id: str, ids: list[str], submit: Submit | None) -> None:
-    """Submit journeys just put back to the queue, after that commit: a run claims only a
-    journey its snapshot shows claimable, so one sent before would find it still waiting and
-    drop it. None: nobody to submit to (the embedded worker's sweep submits every queued
-    journey). When a submit fails, the journeys not submitted wait again, for the sweeps'
-    ``wake_calibrated``, and the error is raised."""
+def _submit(url: str, ids: list[str], submit: Submit | None, stage: str,
+            undo: dict) -> None:
+    """Submit journeys just put back to the queue at ``stage``, after that commit: a run claims
+    only a journey its snapshot shows claimable, so one sent before would find it still waiting
+    and drop it. None: nobody to submit to (the embedded worker's sweep submits every queued
+    journey). When a submit fails, the journeys not submitted get the column values ``undo``
+    (what they were before, with a message saying why), and the error is raised."""
     for i, journey_id in enumerate(ids if submit is not None else []):
         try:
             submit(journey_id)
@@ -334,12 +335,17 @@ def _submit(url: str, camera_id: str, ids: list[str], submit: Submit | None) -> 
                 session.execute(
                     update(JourneyRow).where(JourneyRow.id.in_(ids[i:]),
                                              JourneyRow.status == "queued",
-                                             JourneyRow.stage == REQUEUED)
-                    .values(stage=WAITING_FOR_CAMERA, message=(
-                        f"waiting to be queued again: camera {camera_id} has a calibration now, "
-                        f"but the job queue could not be reached; the workers' sweeps queue it "
-                        f"again")))
+                                             JourneyRow.stage == stage)
+                    .values(**undo))
             raise
+
+
+def _submit_woken(url: str, camera_id: str, ids: list[str], submit: Submit | None) -> None:
+    """``_submit`` journeys woken for their camera; those not submitted wait again, for the
+    sweeps' ``wake_calibrated``."""
+    _submit(url, ids, submit, REQUEUED, dict(stage=WAITING_FOR_CAMERA, message=(
+        f"waiting to be queued again: camera {camera_id} has a calibration now, but the job "
+        f"queue could not be reached; the workers' sweeps queue it again")))
 
 
 def wake_calibrated(url: str, settings: Settings, submit: Submit | None) -> list[str]:
@@ -450,20 +456,10 @@ def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
         return []
     log.info("camera %s epoch %d: %d journeys queued for re-processing: %s", camera_id, epoch,
              len(ids), ", ".join(ids))
-    for i, queued_id in enumerate(ids if submit is not None else []):
-        try:
-            submit(queued_id)
-        except Exception:
-            # Not queued: done again with the earlier result; the same registration again (or
-            # the journey's Retry of the camera) queues them.
-            with session_scope(url) as session:
-                session.execute(
-                    update(JourneyRow).where(JourneyRow.id.in_(ids[i:]),
-                                             JourneyRow.status == "queued",
-                                             JourneyRow.stage == REPROCESSING)
-                    .values(status="done", stage="done", progress=1.0, reprocess_epoch=None,
-                            message=(f"not re-processed with camera {camera_id}'s calibration "
-                                     f"epoch {epoch}: the job queue could not be reached; "
-                                     f"register the calibration again to queue it")))
-            raise
+    # A journey the queue did not take is done again with its earlier result; the same
+    # registration again (or the journey's Retry of the camera) queues it.
+    _submit(url, ids, submit, REPROCESSING, dict(
+        status="done", stage="done", progress=1.0, reprocess_epoch=None,
+        message=(f"not re-processed with camera {camera_id}'s calibration epoch {epoch}: the "
+                 f"job queue could not be reached; register the calibration again to queue it")))
     return ids
