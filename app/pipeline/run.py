@@ -180,18 +180,19 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
 def _at_camera(journey: Journey, xyz_gps: np.ndarray,
                xyz_align: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """``xyz_gps`` and ``xyz_align`` moved from the GPS antenna to the camera by the manifest's
-    ``gps_antenna_offset_m`` (``gps_track.camera_positions``; the direction of travel taken from
+    ``gps_antenna_offset_m`` (``gps_track.antenna_to_camera``; the direction of travel taken from
     ``xyz_align``), and what the align stage's report says of it; unchanged without one."""
     offset = journey.gps_antenna_offset
     if offset is None:
         return xyz_gps, xyz_align, ()
     t_s = np.array([f.timestamp_s for f in journey.frames])
-    moved_align, heading_known = gps_track.camera_positions(t_s, xyz_align, offset)
-    moved_gps = moved_align if xyz_gps is xyz_align else gps_track.camera_positions(
-        t_s, xyz_gps, offset, travel_xyz=xyz_align)[0]
+    forward = gps_track.camera_travel_direction(t_s, xyz_align, offset)
+    moved_align = gps_track.antenna_to_camera(xyz_align, offset, forward)
+    moved_gps = moved_align if xyz_gps is xyz_align else gps_track.antenna_to_camera(
+        xyz_gps, offset, forward)
     note = (f"GPS antenna offset applied (manifest): forward {offset.forward_m:+.2f} m, left "
             f"{offset.left_m:+.2f} m, up {offset.up_m:+.2f} m")
-    if not heading_known:
+    if forward is None:
         note += (f"; the vehicle never moved faster than {gps_track.MIN_HEADING_SPEED_MPS:g} m/s, "
                  "so only the up part was applied")
     return moved_gps, moved_align, (note,)

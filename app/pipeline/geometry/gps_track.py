@@ -186,30 +186,36 @@ def travel_direction(t_s: np.ndarray, xyz: np.ndarray,
     return velocity[nearest] / speed[nearest][:, None]
 
 
-def camera_positions(t_s: np.ndarray, xyz_antenna: np.ndarray, offset: AntennaOffset, *,
-                     travel_xyz: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+def camera_positions(t_s: np.ndarray, xyz_antenna: np.ndarray,
+                     offset: AntennaOffset) -> tuple[np.ndarray, bool]:
     """(N, 3) camera positions from the antenna's ``xyz_antenna`` (N, 3) at ``t_s`` (N,), and
-    whether the direction of travel was known.
+    whether the direction of travel was known (``camera_travel_direction``, ``antenna_to_camera``).
+    """
+    forward = camera_travel_direction(t_s, xyz_antenna, offset)
+    return antenna_to_camera(xyz_antenna, offset, forward), forward is not None
 
-    Forward is the camera's direction of travel (``travel_direction``), found from ``travel_xyz``
-    (N, 3, the antenna's too; default ``xyz_antenna``): the antenna's own direction of travel
-    turns by atan(forward_m / radius) more than the camera's in a turn (4.5 degrees for 1.09 m on
-    a 14 m radius), so the camera's path is taken from it, its direction found again, and so on
-    HEADING_ITERATIONS times (each leaves ~forward_m / radius of the error before). When the
-    vehicle never moved (no sample at ``MIN_HEADING_SPEED_MPS``), only the ``up`` part is applied:
-    forward and left point nowhere in particular."""
+
+def camera_travel_direction(t_s: np.ndarray, xyz_antenna: np.ndarray,
+                            offset: AntennaOffset) -> np.ndarray | None:
+    """(N, 2) the camera's horizontal direction of travel (``travel_direction``) from the
+    antenna's positions ``xyz_antenna`` (N, 3) at ``t_s`` (N,): the antenna's own direction of
+    travel turns by atan(forward_m / radius) more than the camera's in a turn (4.5 degrees for
+    1.09 m on a 14 m radius), so the camera's path is taken from it, its direction found again,
+    and so on HEADING_ITERATIONS times (each leaves ~forward_m / radius of the error before).
+    None when the vehicle never moved (no sample at ``MIN_HEADING_SPEED_MPS``): forward and left
+    then point nowhere in particular."""
     xyz = np.asarray(xyz_antenna, float)
-    base = xyz if travel_xyz is None else np.asarray(travel_xyz, float)
-    forward = travel_direction(t_s, base) if len(xyz) else None
+    forward = travel_direction(t_s, xyz) if len(xyz) else None
     if forward is None:
-        return _moved(xyz, offset, None), False
+        return None
     for _ in range(HEADING_ITERATIONS):
-        again = travel_direction(t_s, _moved(base, offset, forward))
+        again = travel_direction(t_s, antenna_to_camera(xyz, offset, forward))
         forward = forward if again is None else again
-    return _moved(xyz, offset, forward), True
+    return forward
 
 
-def _moved(xyz: np.ndarray, offset: AntennaOffset, forward: np.ndarray | None) -> np.ndarray:
+def antenna_to_camera(xyz: np.ndarray, offset: AntennaOffset,
+                      forward: np.ndarray | None) -> np.ndarray:
     """``xyz`` (N, 3) minus ``offset`` in the vehicle axes of the horizontal unit directions of
     travel ``forward`` (N, 2); only its up part when None."""
     out = np.array(xyz, dtype=float, copy=True)
