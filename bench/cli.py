@@ -381,6 +381,37 @@ def _add_corpus_parser(bench_sub) -> None:
     c.set_defaults(func=run_corpus_command)
 
 
+def run_fleet_command(args) -> int:
+    from bench.corpus.fleet import run_fleet
+
+    try:
+        md = run_fleet(args.corpus, args.out, args.keep, half=args.half,
+                       agree_rel=args.agree_rel, tag=args.tag)
+    except (ValueError, FileNotFoundError) as exc:
+        raise SystemExit(f"signmap bench fleet: {exc}") from exc
+    print(md.read_text())
+    print(f"wrote {md} and {md.with_suffix('.json')}")
+    return 0
+
+
+def _add_fleet_parser(bench_sub) -> None:
+    f = bench_sub.add_parser(
+        "fleet", help="a camera calibrated jointly from its journeys, on a fleet corpus",
+        description="Calibrates each journey of a fleet corpus (`signmap synth corpus "
+        "--cameras`) alone, then each camera jointly from its journeys, after each journey, "
+        "beside the consensus of its calibrations; writes <date>-fleet<tag>.md/.json.")
+    f.add_argument("--corpus", type=Path, required=True, help="the fleet corpus directory")
+    f.add_argument("--half", choices=("tuning", "check"), help="one half only (by camera)")
+    f.add_argument("--keep", type=Path, required=True, metavar="DIR",
+                   help="each journey's calibration and window are kept here and reused")
+    f.add_argument("--agree-rel", type=float, default=0.03,
+                   help="calibrations within this share of each other agree (default 0.03)")
+    f.add_argument("--tag", default="", help="appended to the output names")
+    f.add_argument("--out", type=Path, default=argparse.SUPPRESS,
+                   help="where the results go (default bench/results)")
+    f.set_defaults(func=run_fleet_command)
+
+
 def run_map_command(args) -> int:
     import sys
 
@@ -474,6 +505,7 @@ def add_parsers(sub) -> None:
     _common(f, inherit=True)
     f.set_defaults(func=run_fusion_command)
     _add_corpus_parser(bench_sub)
+    _add_fleet_parser(bench_sub)
     _add_turns_parser(bench_sub)
     _add_gps_scale_parser(bench_sub)
     _add_gps_draws_parser(bench_sub)

@@ -3,6 +3,7 @@ corpus``: a varied corpus of them (``app.synth.corpus``)."""
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -43,7 +44,11 @@ def add_parsers(sub) -> None:
     synth_sub = p.add_subparsers(dest="synth_command", metavar="{corpus}")
     c = synth_sub.add_parser("corpus", help="a varied corpus of journeys (cameras, lenses, turns, "
                              "speeds, scenes, GPS receivers, detectors), each with its truth")
-    c.add_argument("--n", type=int, required=True, help="number of journeys")
+    size = c.add_mutually_exclusive_group(required=True)
+    size.add_argument("--n", type=int, help="number of journeys")
+    size.add_argument("--cameras", type=int,
+                      help="a fleet instead: this many cameras, each driving 3-8 journeys of its "
+                      "own (one camera_id, one lens); --seed is the first camera's")
     c.add_argument("--seed", type=int, default=0,
                    help="first journey's seed (journeys seed..seed+n-1; default: %(default)s)")
     c.add_argument("--out", required=True, help="corpus directory (corpus.json, <name>/...)")
@@ -75,14 +80,16 @@ def config_from_args(args) -> SynthConfig:
 
 
 def run_corpus(args) -> int:
-    from app.synth.corpus import write_corpus
+    from app.synth.corpus import write_corpus, write_fleet
     from app.synth.draw import MAX_FRAMES
 
     t0 = time.perf_counter()
-    path = write_corpus(args.n, args.seed, Path(args.out), workers=args.workers,
-                        max_frames=args.max_frames or MAX_FRAMES)
+    write = write_corpus if args.n is not None else write_fleet
+    path = write(args.n if args.n is not None else args.cameras, args.seed, Path(args.out),
+                 workers=args.workers, max_frames=args.max_frames or MAX_FRAMES)
+    n = len(json.loads(path.read_text())["journeys"])
     print(path)
-    print(f"{args.n} journeys in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    print(f"{n} journeys in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
 
 

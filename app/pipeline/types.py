@@ -184,6 +184,36 @@ class Calibration:
     # Stage 2's sigma of each of INTRINSICS_STD (px for fx, fy, cx, cy) from its covariance;
     # () when unknown.
     intrinsics_std: tuple[float, ...] = ()
+    # The accepted window's reconstruction, for a camera's joint calibration
+    # (``steps.calibrate_jointly``); None when not kept (a stored calibration).
+    observations: "WindowObservations | None" = None
+
+
+@dataclass(frozen=True)
+class WindowObservations:
+    """A calibrated window's reconstruction, all that adjusting it again needs: ``T_cam_model``
+    (M, 4, 4) its registered images' poses in its own model frame and scale; ``xyz_model`` (P, 3)
+    its points; ``xy_px`` (N, 2) every observation, of point ``obs_point`` (N,) in image
+    ``obs_image`` (N,) (indices into those). ``label``: which journey and frames it is."""
+
+    label: str
+    T_cam_model: np.ndarray
+    xyz_model: np.ndarray
+    xy_px: np.ndarray
+    obs_image: np.ndarray
+    obs_point: np.ndarray
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The fields as arrays (``np.savez``); ``from_arrays`` inverts it."""
+        return {"label": np.array(self.label), "T_cam_model": self.T_cam_model,
+                "xyz_model": self.xyz_model, "xy_px": self.xy_px,
+                "obs_image": self.obs_image, "obs_point": self.obs_point}
+
+    @classmethod
+    def from_arrays(cls, a) -> "WindowObservations":
+        return cls(str(a["label"]), np.asarray(a["T_cam_model"], float),
+                   np.asarray(a["xyz_model"], float), np.asarray(a["xy_px"], float),
+                   np.asarray(a["obs_image"], np.int64), np.asarray(a["obs_point"], np.int64))
 
 
 @dataclass(frozen=True)

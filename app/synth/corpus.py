@@ -1,7 +1,8 @@
 """``signmap synth corpus``: many varied journeys, each in ``<out>/<name>/`` (bundle.zip and
 truth.json, whose ``corpus`` entry holds its seed, half and drawn parameters), listed in
 ``<out>/corpus.json``. Journeys already written by the same generator version with the same
-parameters are kept (a cache), so a corpus grows or resumes cheaply."""
+parameters are kept (a cache), so a corpus grows or resumes cheaply. ``write_fleet``: the same for
+cameras that each drive several journeys (``app.synth.draw.fleet``)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ from pathlib import Path
 
 from app.synth.bundle import GENERATOR_VERSION
 from app.synth.draw import MAX_FRAMES, draw_journey
+from app.synth.draw.fleet import draw_fleet_journey, fleet_journey_name, fleet_size
 from app.synth.journey import write_bundle
 
 CORPUS_FORMAT = "signmap-corpus/1"
-__all__ = ["CORPUS_FORMAT", "draw_journey", "journey_name", "write_corpus"]
+__all__ = ["CORPUS_FORMAT", "draw_journey", "journey_name", "write_corpus", "write_fleet"]
 
 
 def journey_name(seed: int) -> str:
@@ -42,8 +44,17 @@ def _cached(jdir: Path, params: dict) -> bool:
 def write_journey_dir(seed: int, out: Path, max_frames: int = MAX_FRAMES) -> dict:
     """Draw and (unless cached) render journey ``seed``; returns its corpus.json entry plus
     ``seconds`` and ``cached``."""
-    cfg, params = draw_journey(seed, max_frames)
-    name = journey_name(seed)
+    return _write_drawn(journey_name(seed), seed, *draw_journey(seed, max_frames), out)
+
+
+def write_fleet_journey(key: tuple[int, int], out: Path, max_frames: int = MAX_FRAMES) -> dict:
+    """``write_journey_dir`` for journey ``key[1]`` of fleet camera ``key[0]``."""
+    camera_seed, k = key
+    cfg, params = draw_fleet_journey(camera_seed, k, max_frames)
+    return _write_drawn(fleet_journey_name(camera_seed, k), cfg.seed, cfg, params, out)
+
+
+def _write_drawn(name: str, seed: int, cfg, params: dict, out: Path) -> dict:
     jdir = Path(out) / name
     entry = {"name": name, "seed": seed, "half": params["half"], "dir": name,
              "params": _jsonable(params)}
@@ -63,34 +74,49 @@ def write_journey_dir(seed: int, out: Path, max_frames: int = MAX_FRAMES) -> dic
 def _log_line(e: dict) -> str:
     p = e["params"]
     what = "cached" if e["cached"] else f"{e['seconds']:.1f} s"
+    rate = f"{p['gps_rate_hz']:g} Hz" if p["gps_rate_hz"] else "each frame"  # short journeys
     return (f"{e['name']} {e['half']:6s} {p['kind']}/{p['turn_kind']} "
             f"turn {p['max_turn_deg']:.0f}° "
             f"{p['n_frames']} fr @{p['fps']:g} Hz {p['speed_mps']:.1f} m/s "
             f"{p['width']}x{p['height']} hfov {p['hfov_deg']:.0f}° k1 {p['k1']:+.2f} "
-            f"{p['scene']} gps {p['gps_rate_hz']:g} Hz {p['gps_white_sigma_m']:.1f} m: {what}")
+            f"{p['scene']} gps {rate} {p['gps_white_sigma_m']:.1f} m: {what}")
 
 
 def write_corpus(n: int, seed: int, out: Path, *, workers: int = 1,
                  max_frames: int = MAX_FRAMES) -> Path:
     """Journeys of seeds ``seed .. seed + n - 1`` into ``out``; returns ``out/corpus.json``."""
+    return _write_index(list(range(seed, seed + n)), write_journey_dir, out, workers, max_frames,
+                        {"seed": seed, "n": n})
+
+
+def write_fleet(cameras: int, seed: int, out: Path, *, workers: int = 1,
+                max_frames: int = MAX_FRAMES) -> Path:
+    """The journeys of fleet cameras ``seed .. seed + cameras - 1`` (``fleet_size`` each) into
+    ``out``; returns ``out/corpus.json``, whose entries' ``params`` carry ``camera_id``."""
+    keys = [(c, k) for c in range(seed, seed + cameras) for k in range(fleet_size(c))]
+    return _write_index(keys, write_fleet_journey, out, workers, max_frames,
+                        {"seed": seed, "n": len(keys), "cameras": cameras})
+
+
+def _write_index(keys: list, write, out: Path, workers: int, max_frames: int,
+                 header: dict) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    seeds = list(range(seed, seed + n))
-    entries: dict[int, dict] = {}
+    entries: dict = {}
     if workers <= 1:
-        for s in seeds:
-            entries[s] = write_journey_dir(s, out, max_frames)
-            print(_log_line(entries[s]), file=sys.stderr, flush=True)
+        for key in keys:
+            entries[key] = write(key, out, max_frames)
+            print(_log_line(entries[key]), file=sys.stderr, flush=True)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(write_journey_dir, s, out, max_frames): s for s in seeds}
-            for fut in futures:  # in seed order; each line when its journey is done
+            futures = {pool.submit(write, key, out, max_frames): key for key in keys}
+            for fut in futures:  # in key order; each line when its journey is done
                 entries[futures[fut]] = fut.result()
                 print(_log_line(entries[futures[fut]]), file=sys.stderr, flush=True)
-    index = {"format": CORPUS_FORMAT, "seed": seed, "n": n,
+    index = {"format": CORPUS_FORMAT, **header,
              "generator_version": GENERATOR_VERSION, "max_frames": max_frames,
-             "journeys": [{k: entries[s][k] for k in ("name", "seed", "half", "dir", "params")}
-                          for s in seeds]}
+             "journeys": [{k: entries[key][k] for k in ("name", "seed", "half", "dir", "params")}
+                          for key in keys]}
     path = out / "corpus.json"
     path.write_text(json.dumps(index, indent=1))
     return path

@@ -23,6 +23,7 @@ import numpy as np
 from app.pipeline.geometry.gps_noise import white_noise_m
 from app.pipeline.geometry.gps_track import smoothed_positions
 from app.pipeline.geometry.similarity import align_trajectory
+from app.synth.draw import draw_journey
 from bench.studies.turn_detection import corpus_gps
 
 WINDOW_FRAMES = 80

@@ -242,3 +242,29 @@ def test_default_configs_render_what_they_did_before_the_corpus():
     for digest, cfg in before.items():
         with tempfile.TemporaryDirectory() as tmp:
             assert _digest(write_bundle(cfg, Path(tmp))) == digest
+
+
+def test_a_fleet_camera_drives_several_journeys_through_one_lens():
+    from app.synth.draw.fleet import FLEET_JOURNEYS, draw_fleet_journey, fleet_size
+
+    sizes = [fleet_size(c) for c in range(40)]
+    assert min(sizes) >= FLEET_JOURNEYS[0] and max(sizes) <= FLEET_JOURNEYS[1]
+    assert len(set(sizes)) > 3
+    drawn = [draw_fleet_journey(7, k, 6) for k in range(fleet_size(7))]
+    cameras = {cfg.camera for cfg, _ in drawn}
+    assert len(cameras) == 1 and {cfg.camera_id for cfg, _ in drawn} == {"fleet-0007"}
+    assert {p["half"] for _, p in drawn} == {"check"}  # the camera's half
+    assert len({(p["turns"], p["speed_mps"]) for _, p in drawn}) == len(drawn)  # other drives
+    (cfg, params), other = drawn[0], draw_fleet_journey(8, 0, 6)[0]
+    assert params["fx"] == cfg.camera.fx and other.camera != cfg.camera
+
+
+def test_tiny_fleet_on_disk(tmp_path):
+    from app.synth.corpus import write_fleet
+
+    index = json.loads(write_fleet(1, 10, tmp_path, max_frames=4).read_text())
+    names = [j["name"] for j in index["journeys"]]
+    assert index["cameras"] == 1 and names[0] == "f0010-0" and len(names) >= 3
+    manifest = json.loads(zipfile.ZipFile(tmp_path / names[1] / "bundle.zip")
+                          .read("manifest.json"))
+    assert manifest["camera_id"] == "fleet-0010"

@@ -9,6 +9,7 @@ parameter block. Runs inside the COLMAP child process (``colmap.sfm``).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -56,11 +57,12 @@ _FLAT = 1e8
 def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float,
                    function_tolerance: float, max_iterations: int,
                    aspect_sigma: float = 0.0, threads: int = -1,
-                   covariance: bool = False) -> np.ndarray:
+                   covariance: bool = False, gauge: "Gauge | None" = None) -> np.ndarray:
     """One bundle adjustment of ``rec`` in place; with ``covariance``, returns the standard
     deviations (6,) of fx, fy, cx, cy (px), k1, k2 that the solution's covariance gives (unit
     pixel noise scaled by the mean reprojection error; nan when they cannot be estimated), else
-    nan."""
+    nan. ``gauge``: what holds the gauge of each separate part of ``rec`` (None: ``rec`` is one
+    part, COLMAP's own choice of two cameras holds it)."""
     import pyceres
 
     options = presets.options(pycolmap, "BundleAdjustmentOptions",
@@ -73,7 +75,11 @@ def _bundle_adjust(pycolmap, rec, *, principal_point: bool, loss_scale_px: float
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
-    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    if gauge is None:
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    else:
+        for frame_id in gauge.frames:
+            config.set_constant_rig_from_world_pose(frame_id)
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
     problem = adjuster.problem
     # Keep the manifold and the parameter arrays alive in variables until solve() returns: a
@@ -117,9 +123,18 @@ def _intrinsics_std(pycolmap, rec, adjuster, params: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(diag), np.sqrt(np.clip(diag, 0.0, None)) * rms_px, np.nan)
 
 
+@dataclass(frozen=True)
+class Gauge:
+    """The frames whose poses a bundle adjustment holds: in a reconstruction of separate parts
+    (``colmap.joint``), one per part (COLMAP's gauge holds one connected part only)."""
+
+    frames: tuple[int, ...] = ()
+
+
 def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
                           function_tolerance: float = 1e-6, max_iterations: int = 1000,
-                          aspect_sigma: float = 0.0, threads: int = -1) -> np.ndarray:
+                          aspect_sigma: float = 0.0, threads: int = -1,
+                          gauge: Gauge | None = None) -> np.ndarray:
     """Stage 2 in place on ``rec``: OPENCV model, all intrinsics but p1, p2 refined. Returns
     the standard deviations (6,) of ``INTRINSICS_STD`` from COLMAP's covariance of its solution
     (nan where there is none).
@@ -132,7 +147,8 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
 
     ``function_tolerance``: Ceres stops when an iteration lowers the cost by less than this
     fraction. COLMAP's 0 ran both passes to 100 iterations: 7.7 s on turn-70's 22 images, 2.4 s
-    at 1e-6 with every intrinsic within 0.1 % of the same. ``max_iterations``: the
+    at 1e-6 with every intrinsic within 0.1 % of the same. ``gauge``: see ``_bundle_adjust``.
+    ``max_iterations``: the
     limit of each adjustment; a stage 1 far off can need more than 100 iterations down stage 2's
     shallow valley (tuning c0800 stopped at fx -8.3 % after 100, reached -0.05 % within 1000).
 
@@ -143,11 +159,12 @@ def refine_all_intrinsics(pycolmap, rec, *, filter_max_error_px: float = 4.0,
         _to_opencv(pycolmap, cam)
     _bundle_adjust(pycolmap, rec, principal_point=False, loss_scale_px=2.0,
                    function_tolerance=function_tolerance, max_iterations=max_iterations,
-                   threads=threads)
+                   threads=threads, gauge=gauge)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     std = _bundle_adjust(pycolmap, rec, principal_point=True, loss_scale_px=1.0,
                          function_tolerance=function_tolerance, max_iterations=max_iterations,
-                         aspect_sigma=aspect_sigma, threads=threads, covariance=True)
+                         aspect_sigma=aspect_sigma, threads=threads, covariance=True,
+                         gauge=gauge)
     _filter_observations(pycolmap, rec, filter_max_error_px)
     return std
 

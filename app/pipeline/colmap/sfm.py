@@ -28,7 +28,7 @@ import numpy as np
 from app.pipeline.colmap import presets, sift_cache
 from app.pipeline.colmap.lifeline import die_with_parent
 from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
-from app.pipeline.types import CameraModel, PipelineError
+from app.pipeline.types import CameraModel, PipelineError, WindowObservations
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +82,7 @@ class WindowResult:
     # The focal scales stage 2 was started again from (``MappingOptions.stage2_probe``).
     probe_moves: tuple[float, ...] = ()
     unprobed_camera: CameraModel | None = None  # stage 2's camera before those
+    observations: WindowObservations | None = None  # a calibration's reconstruction, kept
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -386,6 +387,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
     result.probe_moves = tuple(moves)
     result.unprobed_camera = unprobed if moves else None
+    if window.calibrate:
+        result.observations = window_observations(rec, result.image_names)
     if std is not None:
         result.intrinsics_std = tuple(float(v) for v in std)
         result.focal_std_rel = float(std[0]) / result.camera.fx
@@ -398,6 +401,27 @@ def _window_result(rec, image_names: list[str], stage1: CameraModel | None) -> W
     return WindowResult(names, T, camera, stage1,
                         float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
                         len(image_names))
+
+
+def window_observations(rec, names: list[str]) -> WindowObservations:
+    """``rec``'s registered images of ``names`` (in that order), their points and observations,
+    in OpenCV pixels."""
+    names, T_model_cam = registered_poses(rec, names)
+    by_name = {im.name: im for im in rec.images.values()}
+    point_index: dict[int, int] = {}
+    xyz, xy, obs_image, obs_point = [], [], [], []
+    for k, name in enumerate(names):
+        for p in by_name[name].get_observation_points2D():
+            if p.point3D_id not in point_index:
+                point_index[p.point3D_id] = len(xyz)
+                xyz.append(rec.points3D[p.point3D_id].xyz)
+            xy.append(np.asarray(p.xy) - COLMAP_PIXEL_OFFSET)
+            obs_image.append(k)
+            obs_point.append(point_index[p.point3D_id])
+    return WindowObservations(
+        f"frames {names[0]}-{names[-1]}" if names else "", np.linalg.inv(T_model_cam),
+        np.array(xyz, float).reshape(-1, 3), np.array(xy, float).reshape(-1, 2),
+        np.array(obs_image, np.int64), np.array(obs_point, np.int64))
 
 
 def registered_poses(rec, names: list[str]) -> tuple[list[str], np.ndarray]:

@@ -531,4 +531,5 @@ def _calibration(chosen: list[tuple[CalibrationWindow, WindowResult]],
                        windows=[(int(window.frame_idx[0]), int(window.frame_idx[-1]) + 1)],
                        evidence=evidence,
                        focal_std_rel=accepted.focal_std_rel,
-                       intrinsics_std=accepted.intrinsics_std)
+                       intrinsics_std=accepted.intrinsics_std,
+                       observations=accepted.observations)

@@ -229,6 +229,8 @@ class CameraEpochOut(BaseModel):
                     "calibrated the camera")
     started_at: datetime
     calibration: CalibrationOut | None
+    calibration_source: Literal["registered", "joint", "consensus"] | None = Field(
+        None, description="where the epoch's calibration comes from (as the camera's `source`)")
     sigma: CalibrationSigmaOut | None
     journeys: int = Field(description="the journeys in the epoch's calibration")
     self_calibrations: int = Field(description="the epoch's self-calibrations, all")
@@ -265,17 +267,25 @@ class CameraOut(BaseModel):
     height: int | None
     calibration: CalibrationOut | None = Field(
         description="what the camera's journeys without a turn are given; null: none yet")
-    source: Literal["registered", "consensus"] | None = Field(
-        description="'registered': as an admin gave it; 'consensus': the mean of the agreeing "
-                    "newest self-calibrations of its epoch")
+    source: Literal["registered", "joint", "consensus"] | None = Field(
+        description="'registered': as an admin gave it; 'joint': one bundle adjustment over the "
+                    "turn windows of its epoch's newest self-calibrations, sharing the camera; "
+                    "'consensus': the mean of the agreeing newest self-calibrations of its epoch "
+                    "(before two of them kept their turn windows)")
+    fy_resolved: bool | None = Field(
+        None, description="joint calibrations: whether its journeys' turns pin fy (2 sigma "
+                          "within 0.3 %); turns about one vertical axis leave the pixel aspect "
+                          "weakly determined, and its sigma then says how far off fy may be")
     epoch: int | None = Field(description="the epoch the calibration is of (the newest)")
     sigma: CalibrationSigmaOut | None = Field(
         description="1-sigma of the calibration, same units: as registered (0 where none was "
-                    "given), or the standard error of the consensus mean (null for a single "
-                    "self-calibration: not known)")
+                    "given), the joint fit's (the larger of its covariance's and the windows' "
+                    "own spread over sqrt(n)), or the standard error of the consensus mean "
+                    "(null for a single self-calibration: not known)")
     sigma_basis: str | None = Field(description="where the sigma comes from, in words")
-    journeys: int = Field(description="the journeys in the calibration: the consensus's members, "
-                                      "or the self-calibrations agreeing with a registered one")
+    journeys: int = Field(description="the journeys in the calibration: those the joint fit "
+                                      "used, the consensus's members, or the self-calibrations "
+                                      "agreeing with a registered one")
     left_out: list[LeftOutOut] = Field(
         description="the epoch's journeys whose self-calibration disagreed, and why")
     waiting: int = Field(description="journeys queued with stage waiting_for_camera: no turn, "

@@ -6,9 +6,9 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Any
 
-from sqlalchemy import (JSON, CheckConstraint, DateTime, Float, ForeignKey, Index, Integer, String,
-                        Text, TypeDecorator, UniqueConstraint, and_, or_, text)
-from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy import (JSON, CheckConstraint, DateTime, Float, ForeignKey, Index, Integer,
+                        LargeBinary, String, Text, TypeDecorator, UniqueConstraint, and_, or_, text)
+from sqlalchemy.orm import DeclarativeBase, Mapped, deferred, mapped_column
 
 from app.pipeline.bundle.detections import MAX_CLASS_CHARS
 
@@ -193,6 +193,52 @@ class CalibrationRow(Base):
     registered_by: Mapped[str | None] = mapped_column(String(200))
     # The first self-calibration of an epoch a lens change started: why (migration 0010).
     epoch_reason: Mapped[str | None] = mapped_column(String(500))
+    # A self-calibration's accepted turn window (``types.WindowObservations`` as ``np.savez``
+    # bytes, ``jobs.camera_fit``), for the camera's joint calibration; loaded only when asked
+    # for (a few hundred kB). NULL: not kept (registered, or stored before migration 0011).
+    window: Mapped[bytes | None] = deferred(mapped_column(LargeBinary))
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+    def params(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in CALIBRATION_PARAMS}
+
+    def sigma(self) -> dict[str, float | None]:
+        return {k: getattr(self, f"sigma_{k}") for k in CALIBRATION_PARAMS}
+
+
+class CameraFitRow(Base):
+    """A camera's joint calibration over the turn windows of an epoch's self-calibrations
+    (``jobs.camera_fit``; ``steps.calibrate_jointly``). The newest of an epoch is what its later
+    journeys are given, unless the epoch has a registered calibration. ``inputs``: the ids of
+    the calibrations it considered, sorted (the same inputs are not fitted twice); ``used``
+    those in the fit; ``left_out`` id -> why not; ``rms_px`` id -> its window's reprojection
+    error under the result."""
+
+    __tablename__ = "camera_fits"
+    __table_args__ = (Index("ix_camera_fits_camera_epoch", "camera_id", "epoch"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(200))
+    epoch: Mapped[int] = mapped_column(Integer)
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    fx: Mapped[float] = mapped_column(Float)
+    fy: Mapped[float] = mapped_column(Float)
+    cx: Mapped[float] = mapped_column(Float)
+    cy: Mapped[float] = mapped_column(Float)
+    k1: Mapped[float] = mapped_column(Float)
+    k2: Mapped[float] = mapped_column(Float)
+    sigma_fx: Mapped[float | None] = mapped_column(Float)
+    sigma_fy: Mapped[float | None] = mapped_column(Float)
+    sigma_cx: Mapped[float | None] = mapped_column(Float)
+    sigma_cy: Mapped[float | None] = mapped_column(Float)
+    sigma_k1: Mapped[float | None] = mapped_column(Float)
+    sigma_k2: Mapped[float | None] = mapped_column(Float)
+    fy_resolved: Mapped[bool] = mapped_column(default=False)
+    inputs: Mapped[list] = mapped_column(JSON)
+    used: Mapped[list] = mapped_column(JSON)
+    left_out: Mapped[dict] = mapped_column(JSON)
+    rms_px: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
     def params(self) -> dict[str, float]:

@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 
 from app.pipeline.types import CameraModel
 from app.service.db.models import (CALIBRATION_PARAMS, WAITING_FOR_CAMERA, CalibrationRow,
-                                   JourneyRow)
+                                   CameraFitRow, JourneyRow)
 from app.service.jobs import state
 from app.settings import Settings
 
@@ -47,6 +47,12 @@ class EpochView:
     left_out: list[tuple[CalibrationRow, str]] = field(default_factory=list)
     reason: str | None = None  # why it started (a lens change's ``epoch_reason``)
     first_journey_id: str | None = None  # a lens change's first journey
+    fit: CameraFitRow | None = None  # its newest joint calibration, when that is its calibration
+
+    @property
+    def kind(self) -> str:
+        """'registered', 'joint' or 'consensus': where the epoch's calibration comes from."""
+        return "registered" if self.registered else "joint" if self.fit else "consensus"
 
 
 @dataclass
@@ -112,7 +118,26 @@ def _consensus_sigma(members: list[CalibrationRow]) -> tuple[dict[str, float | N
             f"deviation over sqrt({len(members)}))")
 
 
-def _epoch(epoch: int, rows: list[CalibrationRow], agree_rel: float, newest: int) -> EpochView:
+def _joint(view: EpochView, selfs: list[CalibrationRow], fit: CameraFitRow, newest: int) -> None:
+    view.fit, view.camera = fit, state.fit_camera(fit)
+    view.sigma = fit.sigma()
+    view.sigma_basis = (f"joint bundle adjustment of {len(fit.used)} journeys' turn windows: the "
+                        f"larger of its covariance's sigma and the spread of their own "
+                        f"calibrations over sqrt({len(fit.used)})")
+    view.considered = selfs[::-1][:newest]
+    used, inputs = set(fit.used), set(fit.inputs)
+    for row in view.considered:
+        if row.id in used:
+            view.members.append(row)
+        elif str(row.id) in fit.left_out:
+            view.left_out.append((row, fit.left_out[str(row.id)]))
+        elif row.id not in inputs:
+            view.left_out.append((row, "calibrated after the newest joint calibration"
+                                  if row.id > max(inputs) else "its turn window was not kept"))
+
+
+def _epoch(epoch: int, rows: list[CalibrationRow], agree_rel: float, newest: int,
+           fit: CameraFitRow | None = None) -> EpochView:
     registered = next((r for r in rows if r.source == "registered"), None)
     selfs = [r for r in rows if r.source == "self"]
     view = EpochView(epoch=epoch, source="registered" if registered else "self",
@@ -140,6 +165,9 @@ def _epoch(epoch: int, rows: list[CalibrationRow], agree_rel: float, newest: int
                 view.members.append(row)
             else:
                 view.left_out.append((row, reason))
+        return view
+    if fit is not None:
+        _joint(view, selfs, fit, newest)
         return view
     voters = selfs[::-1][:newest]
     camera, members = state.consensus([state.stored_camera(r) for r in voters], agree_rel)
@@ -181,7 +209,8 @@ def camera_view(session: Session, camera_id: str, settings: Settings) -> CameraV
     for row in rows:
         by_epoch.setdefault(row.epoch, []).append(row)
     epochs = [_epoch(e, by_epoch[e], settings.calibration_flag_rel,
-                     settings.calibration_consensus_newest) for e in sorted(by_epoch)]
+                     settings.calibration_consensus_newest,
+                     state.latest_fit(session, camera_id, e)) for e in sorted(by_epoch)]
     return CameraView(camera_id, epochs, waiting, list(dict.fromkeys(sizes)), owners,
                       reprocessing)
 
@@ -207,8 +236,9 @@ def to_json(view: CameraView, visible: Visible = lambda _owner: True, admin: boo
         "camera_id": view.camera_id,
         "width": size[0], "height": size[1],
         "calibration": camera.params() if camera is not None else None,
-        "source": (("registered" if current.registered else "consensus")
-                   if camera is not None else None),
+        "source": current.kind if camera is not None else None,
+        "fy_resolved": (bool(current.fit.fy_resolved) if camera is not None and current.fit
+                        else None),
         "epoch": current.epoch if current else None,
         "sigma": _sigma_json(current.sigma) if camera is not None else None,
         "sigma_basis": current.sigma_basis if camera is not None else None,
@@ -219,6 +249,7 @@ def to_json(view: CameraView, visible: Visible = lambda _owner: True, admin: boo
         "reprocessing": view.reprocessing,
         "epochs": [{
             "epoch": e.epoch, "source": e.source, "started_at": e.started_at,
+            "calibration_source": e.kind if e.camera is not None else None,
             "calibration": e.camera.params() if e.camera is not None else None,
             "sigma": _sigma_json(e.sigma), "journeys": len(e.members),
             "self_calibrations": sum(r.source == "self" for r in e.rows),

@@ -12,14 +12,16 @@ import threading
 import time
 from typing import Callable
 
+from sqlalchemy import select
+
 from app.pipeline.bundle import read_bundle
 from app.pipeline.detect import apply_detector, bundle_has_detections
 from app.pipeline.run import process_journey
 from app.pipeline.types import NoTurnError, PipelineError, StageReport
 from app.service import storage
-from app.service.jobs import cameras, fusion, state
+from app.service.jobs import camera_fit, cameras, fusion, state
 from app.service.db.session import session_scope
-from app.service.db.models import JourneyRow
+from app.service.db.models import CalibrationRow, JourneyRow
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -127,6 +129,7 @@ def run_journey(journey_id: str, settings: Settings,
                  timings_s["total_s"], len(result.signs), result.calibration.source,
                  result.timings_s)
         if result.calibration.source == "self":
+            _refit(url, journey_id, camera_id, settings)
             _wake(url, camera_id, size, submit)
             _reprocess_if_superseded(url, camera_id, None, submit, settings)
         elif result.calibration.source == "supplied":
@@ -152,6 +155,21 @@ def run_journey(journey_id: str, settings: Settings,
     finally:
         heartbeat.stopped.set()
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _refit(url: str, journey_id: str, camera_id: str, settings: Settings) -> None:
+    """The camera's joint calibration, with this journey's turn window in it (before the wake,
+    so that the journeys waiting for the camera are given it). The journey is done whatever
+    happens here; the next self-calibration of the camera fits again."""
+    try:
+        with session_scope(url) as session:
+            epoch = session.scalar(select(CalibrationRow.epoch)
+                                   .where(CalibrationRow.journey_id == journey_id))
+        if epoch is not None:
+            camera_fit.refit(url, camera_id, epoch, settings)
+    except Exception:
+        log.exception("camera %s: the joint calibration with journey %s failed; its consensus "
+                      "or earlier joint calibration stays", camera_id, journey_id)
 
 
 def _wake(url: str, camera_id: str, size: tuple[int, int],

@@ -7,6 +7,7 @@ then wakes up can therefore never overwrite the run that replaced it.
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 from dataclasses import dataclass
@@ -16,10 +17,11 @@ import numpy as np
 from sqlalchemy import and_, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
+from app.pipeline.colmap.joint import MAX_POINTS_PER_WINDOW, thinned
 from app.pipeline.types import (INTRINSICS_STD, CameraModel, Journey as JourneyData,
-                                JourneyResult, StageReport)
-from app.service.db.models import (WAITING_FOR_CAMERA, CalibrationRow, JourneyRow, JourneySignRow,
-                                   utc_now)
+                                JourneyResult, StageReport, WindowObservations)
+from app.service.db.models import (WAITING_FOR_CAMERA, CalibrationRow, CameraFitRow, JourneyRow,
+                                   JourneySignRow, utc_now)
 
 log = logging.getLogger(__name__)
 
@@ -141,12 +143,35 @@ def back_to_queue(session: Session, journey_id: str, attempt: int, *, stage: str
 @dataclass(frozen=True)
 class StoredCalibration:
     """What a camera's later journeys are given: its newest epoch's registered calibration
-    (``source`` 'registered', as given), or the ``consensus`` of that epoch's self-calibrations
-    ('consensus')."""
+    (``source`` 'registered', as given), or its joint calibration ('joint', ``jobs.camera_fit``),
+    or else the ``consensus`` of that epoch's self-calibrations ('consensus')."""
 
     camera: CameraModel
     source: str
     epoch: int
+
+
+def window_bytes(observations: WindowObservations) -> bytes:
+    """What ``calibrations.window`` keeps: the window thinned to the points a joint fit uses."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **thinned(observations, MAX_POINTS_PER_WINDOW).arrays())
+    return buffer.getvalue()
+
+
+def window_of(data: bytes) -> WindowObservations:
+    with np.load(io.BytesIO(data)) as arrays:
+        return WindowObservations.from_arrays(arrays)
+
+
+def latest_fit(session: Session, camera_id: str, epoch: int) -> CameraFitRow | None:
+    return session.scalars(select(CameraFitRow)
+                           .where(CameraFitRow.camera_id == camera_id, CameraFitRow.epoch == epoch)
+                           .order_by(CameraFitRow.created_at.desc(), CameraFitRow.id.desc())
+                           .limit(1)).first()
+
+
+def fit_camera(row: CameraFitRow) -> CameraModel:
+    return CameraModel(row.width, row.height, row.fx, row.fy, row.cx, row.cy, row.k1, row.k2)
 
 
 def current_epoch(session: Session, camera_id: str) -> int | None:
@@ -188,7 +213,9 @@ def stored_calibration(session: Session, camera_id: str, exclude_journey_id: str
     journey calibrates itself again, exactly as the first run did). Only the camera's newest
     epoch counts (with ``size``: its newest epoch of frames that size; None when it has none):
     its registered calibration as given, or else the ``consensus`` of its ``newest`` newest
-    self-calibrations (``Settings.calibration_consensus_newest``)."""
+    self-calibrations (``Settings.calibration_consensus_newest``) or, once two of them kept
+    their turn windows, their newest joint calibration (which may count this journey's own
+    window: a journey that calibrates itself does not use it)."""
     epoch = current_epoch(session, camera_id)
     if epoch is None:
         return None
@@ -200,6 +227,9 @@ def stored_calibration(session: Session, camera_id: str, exclude_journey_id: str
     registered = registered_row(session, camera_id, epoch)
     if registered is not None:
         return StoredCalibration(stored_camera(registered), "registered", epoch)
+    fit = latest_fit(session, camera_id, epoch)
+    if fit is not None:
+        return StoredCalibration(fit_camera(fit), "joint", epoch)
     rows = epoch_self_rows(session, camera_id, epoch, exclude_journey_id, newest)
     camera = consensus([stored_camera(r) for r in rows], agree_rel)[0]
     return StoredCalibration(camera, "consensus", epoch) if camera is not None else None
@@ -305,7 +335,9 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
             width=cam.width, height=cam.height, **cam.params(), **_sigma_columns(calib),
             n_images=calib.n_images, n_registered=calib.n_registered,
             reprojection_error_px=_finite_or_none(calib.reprojection_error_px),
-            rotation_deg=float(calib.rotation_deg), epoch_reason=reason))
+            rotation_deg=float(calib.rotation_deg), epoch_reason=reason,
+            window=(window_bytes(calib.observations) if calib.observations is not None
+                    else None)))
         if reason is not None:
             log.warning("camera %s: lens change, calibration epoch %d starts with journey %s: %s",
                         journey.camera_id, epoch, journey_id, reason)

@@ -492,3 +492,40 @@ def test_the_pooled_slope_removes_each_journeys_own_offset():
     slope, se = cr.pooled_slope(flat)
     assert abs(slope) < 3 * se and se > 0
     assert cr.pooled_slope([]) == (None, None)
+
+
+def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
+    """``signmap bench fleet`` on journeys whose calibrations are kept already (as a first run
+    leaves them): the joint fit of each camera beside the consensus, and issue 66's tables."""
+    from app.pipeline.types import CameraModel
+    from app.synth.corpus import CORPUS_FORMAT
+    from bench.corpus.fleet import run_fleet
+    from tests.utils.results.turn_windows import turn_window
+
+    true = CameraModel(1280, 720, 1000.0, 1004.0, 652.0, 355.0, -0.20, 0.08)
+    keep, entries = tmp_path / "keep", []
+    keep.mkdir()
+    for k, (scale, turns) in enumerate([(1.015, True), (0.99, True), (1.0, False),
+                                        (1.02, True)]):
+        name = f"f0001-{k}"
+        params = {**true.params(), "width": 1280, "height": 720, "camera_id": "fleet-0001",
+                  "journey_index": k, "kind": "turns" if turns else "straight"}
+        entries.append({"name": name, "seed": k, "half": "check", "dir": name, "params": params})
+        record = {"name": name, "camera_id": "fleet-0001", "index": k, "half": "check",
+                  "turns": turns, "error": None if turns else "no turn"}
+        if turns:
+            own = true.replace(fx=true.fx * scale, fy=true.fy * scale)
+            record.update(camera=own.params(), intrinsics_std=[1.0] * 6, width=1280, height=720)
+            np.savez_compressed(keep / f"{name}.npz", **turn_window(true, k).arrays())
+        (keep / f"{name}.json").write_text(json.dumps(record))
+    (tmp_path / "corpus.json").write_text(json.dumps({"format": CORPUS_FORMAT,
+                                                      "journeys": entries}))
+    md = run_fleet(tmp_path, tmp_path / "out", keep, half="check", tag="t")
+    report = json.loads(md.with_suffix(".json").read_text())
+    final = report["history"][-1]
+    assert [r["windows"] for r in report["history"]] == [1, 2, 2, 3]
+    assert abs(final["joint_errors"]["fx_pct"]) < 0.3 < abs(final["consensus_errors"]["fx_pct"])
+    text = md.read_text()
+    assert "| turning journeys calibrated | 3/3 (100 %) |" in text
+    assert "| fx within 0.3 % | 1/1 (100 %) | 0/1 (0 %) |" in text
+    assert "| fleet-0001 | 4 (3) | 0 |" in text

@@ -42,11 +42,11 @@ def new_camera() -> str:
 
 
 def self_calibrated(stack, client, key: str, camera_id: str, fx: float, n_frames: int = 5,
-                    source: str = "self") -> str:
+                    source: str = "self", window=None) -> str:
     """A journey of ``camera_id`` uploaded with ``key`` and stored as a worker stores one that
     self-calibrated to ``fx`` (fy = fx + 1, ``made_result``'s camera otherwise), flagged against
     the camera's stored calibration as the job flags it; ``source`` "supplied": one given that
-    calibration instead. Returns its id."""
+    calibration instead; ``window``: its calibration's turn window. Returns its id."""
     from app.pipeline.bundle import read_bundle
 
     files = camera_files(camera_id, n_frames)
@@ -64,7 +64,7 @@ def self_calibrated(stack, client, key: str, camera_id: str, fx: float, n_frames
     with session_scope(stack.url) as session:
         assert fusion.store_journey(session, journey_id, attempt, journey,
                                     made_result([("0", "stop", 49.0112, 8.4185, 114.0)], source,
-                                                fx=fx),
+                                                fx=fx, window=window),
                                     {"total_s": 1.0}, stored.camera if stored else None,
                                     settings, stored.source if stored else None)
     return journey_id

@@ -12,16 +12,18 @@ from tests.utils import bundle_factory as bf
 
 
 def made_result(signs: list[tuple[str, str, float, float, float | None]], source: str = "self",
-                fx: float = 50.0):
+                fx: float = 50.0, window=None):
     """A JourneyResult as the pipeline would return it, with signs (track, class, lat, lon, alt)
-    seen in frames 000000 and 000001 of the factory bundle."""
+    seen in frames 000000 and 000001 of the factory bundle; ``window``: the calibration's turn
+    window (``types.WindowObservations``), None: not kept."""
     from app.pipeline.types import (Calibration, CameraModel, JourneyResult, Sign,
                                     SignObservation)
 
     camera = CameraModel(64, 48, fx, fx + 1.0, 31.5, 23.5, -0.1, 0.01)
     return JourneyResult(
         calibration=Calibration(camera, source, n_images=5, n_registered=5,
-                                reprojection_error_px=0.4, rotation_deg=35.0),
+                                reprojection_error_px=0.4, rotation_deg=35.0,
+                                observations=window),
         signs=[Sign(track, cls, np.array([float(i), 2.0, 1.5]), lat, lon, alt, 0.2, 0.7,
                     [SignObservation("000000", (1.0 + i, -0.5, 12.0)),
                      SignObservation("000001", (0.8 + i, -0.5, 11.0))],

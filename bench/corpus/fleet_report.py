@@ -1,0 +1,118 @@
+"""The markdown of ``signmap bench fleet`` (``bench.corpus.fleet``): issue 66's per-journey and
+per-camera bars, the joint calibration beside the consensus."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Issue 66's bars.
+ALONE_FOCAL_PCT, ALONE_DISTORTION_PX, WRONG_PCT = 1.0, 1.0, 3.0
+CAMERA_FOCAL_PCT, CAMERA_PP_PX, CAMERA_DISTORTION_PX, CAMERA_MAX_FOCAL_PCT = 0.3, 2.0, 0.5, 1.0
+
+
+def _fmt(v, digits: int = 2, sign: bool = True) -> str:
+    if v is None or not np.isfinite(v):
+        return "-"
+    return f"{v:+.{digits}f}" if sign else f"{v:.{digits}f}"
+
+
+def _share(flags: list[bool]) -> str:
+    return f"{sum(flags)}/{len(flags)}" + (f" ({100 * sum(flags) / len(flags):.0f} %)"
+                                           if flags else "")
+
+
+def alone_rows(journeys: list[dict]) -> list[str]:
+    turning = [j for j in journeys if j["turns"]]
+    calibrated = [j for j in turning if j.get("errors")]
+    within = [abs(j["errors"]["fx_pct"]) <= ALONE_FOCAL_PCT
+              and abs(j["errors"]["fy_pct"]) <= ALONE_FOCAL_PCT
+              and (j["errors"].get("distortion_px") or 0.0) <= ALONE_DISTORTION_PX
+              for j in calibrated]
+    wrong = [abs(j["errors"]["fx_pct"]) > WRONG_PCT for j in calibrated]
+    fx = [abs(j["errors"]["fx_pct"]) for j in calibrated]
+    return ["| journeys calibrated alone | value |", "| --- | --- |",
+            f"| turning journeys calibrated | {_share([bool(j.get('errors')) for j in turning])} |",
+            f"| fx, fy within {ALONE_FOCAL_PCT:g} % and distortion within "
+            f"{ALONE_DISTORTION_PX:g} px (of turning journeys) | "
+            f"{_share(within + [False] * (len(turning) - len(calibrated)))} |",
+            f"| accepted more than {WRONG_PCT:g} % off | {sum(wrong)} of {len(calibrated)} |",
+            f"| abs fx error median / p90 | {_fmt(np.median(fx) if fx else None, sign=False)} / "
+            f"{_fmt(np.quantile(fx, 0.9) if fx else None, sign=False)} % |"]
+
+
+def _final(history: list[dict]) -> list[dict]:
+    last: dict[str, dict] = {}
+    for row in history:
+        last[row["camera_id"]] = row
+    return list(last.values())
+
+
+def _meets(errors: dict) -> tuple[bool, bool, bool]:
+    return (abs(errors["fx_pct"]) <= CAMERA_FOCAL_PCT,
+            max(abs(errors["cx_px"]), abs(errors["cy_px"])) <= CAMERA_PP_PX,
+            (errors.get("distortion_px") or 0.0) <= CAMERA_DISTORTION_PX)
+
+
+def camera_bar_rows(history: list[dict]) -> list[str]:
+    final = _final(history)
+    out = ["| after all of a camera's journeys | joint | consensus (before) |",
+           "| --- | --- | --- |"]
+    for k, label in enumerate((f"fx within {CAMERA_FOCAL_PCT:g} %",
+                               f"principal point within {CAMERA_PP_PX:g} px",
+                               f"distortion within {CAMERA_DISTORTION_PX:g} px")):
+        out.append(f"| {label} | {_share([_meets(r['joint_errors'])[k] for r in final])} | "
+                   f"{_share([_meets(r['consensus_errors'])[k] for r in final])} |")
+    fy_ok = [abs(r["joint_errors"]["fy_pct"]) <= CAMERA_FOCAL_PCT if r["fy_resolved"] else
+             abs(r["joint"]["fy"] - r["true"]["fy"]) <= 2 * r["sigma"]["fy"] for r in final]
+    out.append(f"| fy within {CAMERA_FOCAL_PCT:g} % where resolved, else within 2 sigma | "
+               f"{_share(fy_ok)} | - |")
+    for key in ("joint_errors", "consensus_errors"):
+        worst = max((abs(r[key]["fx_pct"]) for r in final), default=float("nan"))
+        out.append(f"| worst fx ({key.split('_')[0]}) | {_fmt(worst, sign=False)} % "
+                   f"(bar {CAMERA_MAX_FOCAL_PCT:g} %) | |")
+    return out
+
+
+def camera_table(history: list[dict], journeys: list[dict]) -> list[str]:
+    total: dict[str, int] = {}
+    for j in journeys:
+        total[j["camera_id"]] = total.get(j["camera_id"], 0) + 1
+    out = ["| camera | journeys (calibrated) | left out | fx % | fy % (sigma, resolved) | cx, cy px "
+           "| distortion px | consensus fx % | consensus distortion px |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in _final(history):
+        e, c = r["joint_errors"], r["consensus_errors"]
+        fy_sigma_pct = 100 * r["sigma"]["fy"] / r["joint"]["fy"]
+        out.append(f"| {r['camera_id']} | {total[r['camera_id']]} ({r['windows']}) | "
+                   f"{len(r['left_out'])} | {_fmt(e['fx_pct'])} | {_fmt(e['fy_pct'])} "
+                   f"({_fmt(fy_sigma_pct, sign=False)}, {'yes' if r['fy_resolved'] else 'no'}) | "
+                   f"{_fmt(e['cx_px'], 1)}, {_fmt(e['cy_px'], 1)} | "
+                   f"{_fmt(e.get('distortion_px'), 2, sign=False)} | {_fmt(c['fx_pct'])} | "
+                   f"{_fmt(c.get('distortion_px'), 2, sign=False)} |")
+    return out
+
+
+def history_rows(history: list[dict]) -> list[str]:
+    """abs fx error by the number of windows fitted: how a camera improves as journeys come."""
+    by_n: dict[int, list[dict]] = {}
+    for r in history:
+        by_n.setdefault(r["windows"], []).append(r)
+    out = ["| windows | cameras | abs fx % median (joint / consensus) | worst (joint / consensus) |",
+           "| --- | --- | --- | --- |"]
+    for n in sorted(by_n):
+        j = [abs(r["joint_errors"]["fx_pct"]) for r in by_n[n]]
+        c = [abs(r["consensus_errors"]["fx_pct"]) for r in by_n[n]]
+        out.append(f"| {n} | {len(j)} | {_fmt(np.median(j), sign=False)} / "
+                   f"{_fmt(np.median(c), sign=False)} | {_fmt(max(j), sign=False)} / "
+                   f"{_fmt(max(c), sign=False)} |")
+    return out
+
+
+def render_markdown(report: dict) -> str:
+    parts = [f"# Fleet calibration: {report['corpus']} ({report['half'] or 'both halves'})", "",
+             "Command: `signmap bench fleet --corpus ... "
+             + (f"--half {report['half']}" if report["half"] else "") + "`", "",
+             *alone_rows(report["journeys"]), "", *camera_bar_rows(report["history"]), "",
+             *camera_table(report["history"], report["journeys"]), "",
+             *history_rows(report["history"]), ""]
+    return "\n".join(parts)
