@@ -37,7 +37,8 @@ worker's sweep submits every queued journey; Celery has no such sweep).
   journeys keep their own result, and a moving consensus of self-calibrations triggers nothing.
   A lens change (``state.lens_change``) supersedes the old lens's calibration for the journeys
   uploaded after the new epoch's first journey (docs/decisions/registered-calibration.md, "Lens
-  changes").
+  changes"); a joint calibration (``jobs.camera_fit``) that moved by more than its sigma from
+  what a journey was given supersedes it (docs/decisions/camera-joint-calibration.md).
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ from sqlalchemy.orm import Session
 from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS
 from app.pipeline.types import CameraModel, StageReport
 from app.service.db.models import (CALIBRATION_PARAMS, REPROCESSING, WAITING_FOR_CAMERA,
-                                   CalibrationRow, JourneyRow)
+                                   CalibrationRow, CameraFitRow, JourneyRow)
 from app.service.db.session import session_scope
 from app.service.jobs import state
 from app.settings import Settings
@@ -393,6 +394,18 @@ def _disagrees(calibration: dict | None, camera: CameraModel, agree_rel: float) 
     return state.calibration_agreement(given, camera) > agree_rel
 
 
+def _moved(calibration: dict | None, fit: CameraFitRow) -> bool:
+    """Whether a journey's stored calibration differs from the joint ``fit`` by more than the
+    fit's sigma in fx, cx or cy, or in fy where the fit resolves it (an unresolved fy's sigma
+    is wide, and its error matters to heights only)."""
+    if calibration is None or not all(k in calibration for k in CALIBRATION_PARAMS):
+        return False
+    keys = ("fx", "fy", "cx", "cy") if fit.fy_resolved else ("fx", "cx", "cy")
+    sigma = fit.sigma()
+    return any(sigma[k] is not None and abs(float(calibration[k]) - getattr(fit, k)) > sigma[k]
+               for k in keys)
+
+
 def _lens_change_row(session: Session, camera_id: str, epoch: int) -> CalibrationRow | None:
     """The first self-calibration of ``epoch`` when a lens change started it
     (``state.lens_change``, or frames of another size); None otherwise."""
@@ -415,15 +428,18 @@ def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
       lens's) and uploaded after the epoch's first journey; the ones uploaded before were
       taken with the old lens and keep its calibration. A consensus that moves within the
       tolerance re-processes nothing.
+    * An epoch whose calibration is a joint fit (``jobs.camera_fit``): those given a calibration
+      of its frame size that differs from the fit by more than its sigma (``_moved``).
     * Otherwise nothing: a consensus of self-calibrations that moves triggers nothing."""
     settings = settings or Settings()
     with camera_session(url, camera_id) as session:
         epoch = state.current_epoch(session, camera_id)
         registered = state.registered_row(session, camera_id, epoch) if epoch else None
         lens = _lens_change_row(session, camera_id, epoch) if epoch and not registered else None
-        if registered is None and lens is None:
+        fit = state.latest_fit(session, camera_id, epoch) if epoch and not registered else None
+        if registered is None and lens is None and fit is None:
             return []
-        reference = registered or lens
+        reference = registered or lens or fit
         where = [JourneyRow.camera_id == camera_id, JourneyRow.status == "done",
                  JourneyRow.calibration_source == "supplied",
                  JourneyRow.image_width == reference.width,
@@ -435,6 +451,10 @@ def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
                                          .where(*where)).all()
             ids = sorted(i for i, calibration in candidates
                          if not _used(calibration, registered))
+        elif lens is None:
+            candidates = session.execute(select(JourneyRow.id, JourneyRow.calibration)
+                                         .where(*where)).all()
+            ids = sorted(i for i, calibration in candidates if _moved(calibration, fit))
         else:
             first = session.get(JourneyRow, lens.journey_id)
             stored = state.stored_calibration(

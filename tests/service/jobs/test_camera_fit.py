@@ -9,7 +9,7 @@ from __future__ import annotations
 from sqlalchemy import func, select
 
 from app.pipeline.types import CameraModel
-from app.service.db.models import CalibrationRow, CameraFitRow
+from app.service.db.models import REPROCESSING, CalibrationRow, CameraFitRow, JourneyRow
 from app.service.db.session import session_scope
 from app.service.jobs import run, state
 from tests.service.cameras.conftest import new_camera, self_calibrated
@@ -39,6 +39,9 @@ def test_the_camera_is_fitted_jointly_and_a_wrong_window_is_left_out(stack):
         run._refit(url, first, camera_id, settings)
         # One window: nothing to fit; the camera is its one self-calibration.
         assert _fits(stack, camera_id) == 0 and _stored(stack, camera_id).source == "consensus"
+        # A straight journey given that calibration (fx 50.6).
+        given = self_calibrated(stack, client, fleet, camera_id, fx=50.6, n_frames=9,
+                                source="supplied")
 
         second = self_calibrated(stack, client, fleet, camera_id, fx=49.6, n_frames=6,
                                  window=turn_window(TRUE, 1, noise_px=0.05))
@@ -47,6 +50,12 @@ def test_the_camera_is_fitted_jointly_and_a_wrong_window_is_left_out(stack):
         assert stored.source == "joint"
         assert abs(stored.camera.fx / TRUE.fx - 1) < 0.01  # the windows' camera, not their mean
         assert abs(stored.camera.k1 - TRUE.k1) < 0.01
+        # The camera moved by more than its sigma (0.5 px: the two windows' spread over
+        # sqrt(2)) from what the straight journey was given: it is processed again.
+        run._reprocess_if_superseded(url, camera_id, None, None, settings)
+        with session_scope(url) as session:
+            row = session.get(JourneyRow, given)
+            assert (row.status, row.stage) == ("queued", REPROCESSING)
 
         wrong_camera = TRUE.replace(fx=44.0, fy=45.0)
         wrong = self_calibrated(stack, client, fleet, camera_id, fx=44.0, n_frames=7,
@@ -67,4 +76,4 @@ def test_the_camera_is_fitted_jointly_and_a_wrong_window_is_left_out(stack):
         kept = dict(session.execute(select(CalibrationRow.journey_id,
                                            CalibrationRow.window.is_not(None))
                                     .where(CalibrationRow.camera_id == camera_id)).all())
-    assert kept == {first: True, second: True, wrong: True}
+    assert kept == {first: True, second: True, wrong: True}  # the supplied one has none
