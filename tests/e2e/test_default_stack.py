@@ -7,8 +7,14 @@ stored calibration is found and used)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+from sqlalchemy import select
+from sqlalchemy.orm import undefer
 
+from app.service.db.models import CalibrationRow
+from app.service.db.session import session_scope
+from app.service.jobs import state
 from tests.utils.journeys import first_frames
 from tests.utils.results.map_support import map_sign_errors_m
 from tests.utils.results.service_support import sign_errors_m, truth_bbox
@@ -49,6 +55,13 @@ def test_embedded_stack_maps_synthetic_journeys(tmp_path, turn_journey_bundle,
         assert body["n_signs"] == len(features) >= 1  # how many is the pipeline tests' concern
         errors = sign_errors_m(features, turn_truth)
         assert max(errors.values()) < 1.0, errors
+        # Its accepted turn window is kept with its calibration, for the camera's joint fit.
+        with session_scope(stack.url) as session:
+            row = session.scalars(select(CalibrationRow).options(undefer(CalibrationRow.window))
+                                  .where(CalibrationRow.journey_id == turn_id)).one()
+            window = state.window_of(row.window)
+        assert len(window.T_cam_model) == row.n_registered and len(window.xyz_model) >= 500
+        assert np.all(np.bincount(window.obs_point) >= 2)
 
         mapped = client.get("/api/v1/signs", headers=auth(reader),
                             params={"bbox": truth_bbox(turn_truth)}).json()["features"]
