@@ -22,6 +22,7 @@ from app.pipeline.steps.calibrate_jointly import (CameraWindow, calibrate_jointl
                                                   largest_agreeing)
 from app.pipeline.types import CameraModel, WindowObservations
 from bench.corpus.fleet_report import render_markdown
+from bench.corpus.report import STEEP_TURN_DEG
 from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config,
                               select_journeys)
 from bench.paper.run_pipeline import RunTask, run_isolated
@@ -43,8 +44,7 @@ def calibrate_alone(corpus_dir: Path, entry: dict, keep_dir: Path) -> dict:
         except Exception as exc:  # noqa: BLE001 - a crash in the child is a failed record
             error, result = f"{type(exc).__name__}: {exc}", None
     record = {"name": name, "camera_id": entry["params"]["camera_id"],
-              "index": entry["params"]["journey_index"], "half": entry["half"],
-              "turns": entry["params"]["kind"] != "straight", "error": error}
+              "index": entry["params"]["journey_index"], "half": entry["half"], "error": error}
     cal = result.calibration if result is not None else None
     if cal is not None and cal.source == "self" and cal.observations is not None:
         record.update(camera=cal.camera.params(), intrinsics_std=list(cal.intrinsics_std),
@@ -74,10 +74,9 @@ def camera_rows(records: list[dict], true: dict, keep_dir: Path, agree_rel: floa
     consensus of those calibrated so far, with their errors against ``true``."""
     rows, windows = [], []
     for record in records:
-        if record.get("camera"):
-            windows.append(_window(record, keep_dir))
-        if not windows:
-            continue
+        if not record.get("camera"):
+            continue  # no new window: the camera stays as it was
+        windows.append(_window(record, keep_dir))
         joint = calibrate_jointly(windows, agree_rel=agree_rel)
         consensus = _consensus(windows, agree_rel)
         rows.append({"camera_id": record["camera_id"], "after": record["index"] + 1,
@@ -99,6 +98,8 @@ def run_fleet(corpus_dir: Path, out_dir: Path, keep_dir: Path, *, half: str | No
     for k, entry in enumerate(entries, start=1):
         record = calibrate_alone(corpus_dir, entry, keep_dir)
         true = entry["params"]
+        # Issue 11's "turning journeys", as the corpus bench counts them.
+        record["turns"] = (true.get("max_turn_deg") or 0.0) >= STEEP_TURN_DEG
         record["errors"] = camera_errors(record["camera"], true) if record.get("camera") else None
         journeys.append(record)
         log(f"[{k}/{len(entries)}] {entry['name']}: "

@@ -143,7 +143,33 @@ class JourneySignRow(Base):
     observations: Mapped[list[Any]] = mapped_column(JSON)
 
 
-class CalibrationRow(Base):
+class CameraColumns:
+    """A camera's image size, intrinsics (OpenCV pixels) and their 1-sigma (own units; NULL:
+    unknown), as the tables of calibrations share them."""
+
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    fx: Mapped[float] = mapped_column(Float)
+    fy: Mapped[float] = mapped_column(Float)
+    cx: Mapped[float] = mapped_column(Float)
+    cy: Mapped[float] = mapped_column(Float)
+    k1: Mapped[float] = mapped_column(Float)
+    k2: Mapped[float] = mapped_column(Float)
+    sigma_fx: Mapped[float | None] = mapped_column(Float)
+    sigma_fy: Mapped[float | None] = mapped_column(Float)
+    sigma_cx: Mapped[float | None] = mapped_column(Float)
+    sigma_cy: Mapped[float | None] = mapped_column(Float)
+    sigma_k1: Mapped[float | None] = mapped_column(Float)
+    sigma_k2: Mapped[float | None] = mapped_column(Float)
+
+    def params(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in CALIBRATION_PARAMS}
+
+    def sigma(self) -> dict[str, float | None]:
+        return {k: getattr(self, f"sigma_{k}") for k in CALIBRATION_PARAMS}
+
+
+class CalibrationRow(CameraColumns, Base):
     """A calibration of a camera: a journey's successful self-calibration (``source`` 'self',
     ``journey_id`` set) or one an admin registered ('registered', no journey). A registered one
     starts a new ``epoch`` of the camera, and so does a lens change (``epoch_reason``); a
@@ -169,21 +195,6 @@ class CalibrationRow(Base):
                                                    index=True)
     source: Mapped[str] = mapped_column(String(16), default="self", server_default="self")
     epoch: Mapped[int] = mapped_column(Integer, default=1, server_default="1")
-    width: Mapped[int] = mapped_column(Integer)
-    height: Mapped[int] = mapped_column(Integer)
-    fx: Mapped[float] = mapped_column(Float)
-    fy: Mapped[float] = mapped_column(Float)
-    cx: Mapped[float] = mapped_column(Float)
-    cy: Mapped[float] = mapped_column(Float)
-    k1: Mapped[float] = mapped_column(Float)
-    k2: Mapped[float] = mapped_column(Float)
-    # 1-sigma per parameter, its own units; NULL: unknown.
-    sigma_fx: Mapped[float | None] = mapped_column(Float)
-    sigma_fy: Mapped[float | None] = mapped_column(Float)
-    sigma_cx: Mapped[float | None] = mapped_column(Float)
-    sigma_cy: Mapped[float | None] = mapped_column(Float)
-    sigma_k1: Mapped[float | None] = mapped_column(Float)
-    sigma_k2: Mapped[float | None] = mapped_column(Float)
     # Self-calibrations only.
     n_images: Mapped[int | None] = mapped_column(Integer)
     n_registered: Mapped[int | None] = mapped_column(Integer)
@@ -199,14 +210,8 @@ class CalibrationRow(Base):
     window: Mapped[bytes | None] = deferred(mapped_column(LargeBinary))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
-    def params(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in CALIBRATION_PARAMS}
 
-    def sigma(self) -> dict[str, float | None]:
-        return {k: getattr(self, f"sigma_{k}") for k in CALIBRATION_PARAMS}
-
-
-class CameraFitRow(Base):
+class CameraFitRow(CameraColumns, Base):
     """A camera's joint calibration over the turn windows of an epoch's self-calibrations
     (``jobs.camera_fit``; ``steps.calibrate_jointly``). The newest of an epoch is what its later
     journeys are given, unless the epoch has a registered calibration. ``inputs``: the ids of
@@ -220,32 +225,12 @@ class CameraFitRow(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     camera_id: Mapped[str] = mapped_column(String(200))
     epoch: Mapped[int] = mapped_column(Integer)
-    width: Mapped[int] = mapped_column(Integer)
-    height: Mapped[int] = mapped_column(Integer)
-    fx: Mapped[float] = mapped_column(Float)
-    fy: Mapped[float] = mapped_column(Float)
-    cx: Mapped[float] = mapped_column(Float)
-    cy: Mapped[float] = mapped_column(Float)
-    k1: Mapped[float] = mapped_column(Float)
-    k2: Mapped[float] = mapped_column(Float)
-    sigma_fx: Mapped[float | None] = mapped_column(Float)
-    sigma_fy: Mapped[float | None] = mapped_column(Float)
-    sigma_cx: Mapped[float | None] = mapped_column(Float)
-    sigma_cy: Mapped[float | None] = mapped_column(Float)
-    sigma_k1: Mapped[float | None] = mapped_column(Float)
-    sigma_k2: Mapped[float | None] = mapped_column(Float)
     fy_resolved: Mapped[bool] = mapped_column(default=False)
     inputs: Mapped[list] = mapped_column(JSON)
     used: Mapped[list] = mapped_column(JSON)
     left_out: Mapped[dict] = mapped_column(JSON)
     rms_px: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
-
-    def params(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in CALIBRATION_PARAMS}
-
-    def sigma(self) -> dict[str, float | None]:
-        return {k: getattr(self, f"sigma_{k}") for k in CALIBRATION_PARAMS}
 
 
 class MapSignRow(Base):

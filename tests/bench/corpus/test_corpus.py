@@ -509,10 +509,10 @@ def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
                                         (1.02, True)]):
         name = f"f0001-{k}"
         params = {**true.params(), "width": 1280, "height": 720, "camera_id": "fleet-0001",
-                  "journey_index": k, "kind": "turns" if turns else "straight"}
+                  "journey_index": k, "max_turn_deg": 90.0 if turns else 0.0}
         entries.append({"name": name, "seed": k, "half": "check", "dir": name, "params": params})
         record = {"name": name, "camera_id": "fleet-0001", "index": k, "half": "check",
-                  "turns": turns, "error": None if turns else "no turn"}
+                  "error": None if turns else "no turn"}
         if turns:
             own = true.replace(fx=true.fx * scale, fy=true.fy * scale)
             record.update(camera=own.params(), intrinsics_std=[1.0] * 6, width=1280, height=720)
@@ -523,7 +523,7 @@ def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
     md = run_fleet(tmp_path, tmp_path / "out", keep, half="check", tag="t")
     report = json.loads(md.with_suffix(".json").read_text())
     final = report["history"][-1]
-    assert [r["windows"] for r in report["history"]] == [1, 2, 2, 3]
+    assert [(r["after"], r["windows"]) for r in report["history"]] == [(1, 1), (2, 2), (4, 3)]
     assert abs(final["joint_errors"]["fx_pct"]) < 0.3 < abs(final["consensus_errors"]["fx_pct"])
     text = md.read_text()
     assert "| turning journeys calibrated | 3/3 (100 %) |" in text
