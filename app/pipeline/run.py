@@ -190,7 +190,7 @@ def _at_camera(journey: Journey, xyz_gps: np.ndarray,
     moved_align = gps_track.antenna_to_camera(xyz_align, offset, forward)
     moved_gps = moved_align if xyz_gps is xyz_align else gps_track.antenna_to_camera(
         xyz_gps, offset, forward)
-    note = (f"GPS antenna offset applied (manifest): forward {offset.forward_m:+.2f} m, left "
+    note = (f"GPS antenna offset applied ({offset.source}): forward {offset.forward_m:+.2f} m, left "
             f"{offset.left_m:+.2f} m, up {offset.up_m:+.2f} m")
     if forward is None:
         note += (f"; the vehicle never moved faster than {gps_track.MIN_HEADING_SPEED_MPS:g} m/s, "

@@ -104,11 +104,13 @@ class GpsTrack:
 class AntennaOffset:
     """Where the GPS antenna sits relative to the camera: the antenna's position minus the
     camera's, metres, in the vehicle's axes (forward along the direction of travel, left, up; the
-    manifest's ``gps_antenna_offset_m``). ``geometry.gps_track.camera_positions`` applies it."""
+    manifest's ``gps_antenna_offset_m``). ``geometry.gps_track.camera_positions`` applies it.
+    ``source``: who said so, in the align stage's report ("manifest", "vehicle van-3")."""
 
     forward_m: float
     left_m: float
     up_m: float
+    source: str = "manifest"
 
 
 @dataclass

@@ -17,7 +17,7 @@ from sqlalchemy.exc import OperationalError, SQLAlchemyError
 
 from app.service import startup
 from app.service.admin import mount_admin
-from app.service.api.routes import cameras, journeys, tiles
+from app.service.api.routes import cameras, journeys, tiles, vehicles
 from app.service.api.routes import map as map_routes
 from app.service.db.session import session_scope, write_refusal
 from app.service.jobs.queue import JobQueue, local_queue
@@ -76,7 +76,7 @@ def create_app(settings: Settings | None = None, queue: JobQueue | None = None) 
     app.state.settings = settings
     app.state.queue = queue
     app.state.store = make_store(settings)
-    for routes in (journeys, map_routes, tiles, cameras):
+    for routes in (journeys, map_routes, tiles, cameras, vehicles):
         app.include_router(routes.router)
     mount_admin(app)
     app.add_middleware(_JsonErrors)

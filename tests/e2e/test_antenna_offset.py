@@ -9,8 +9,9 @@ the camera (``offset_journey_bundle``). Both runs reuse the camera's true calibr
 1. ``signmap process``: declared, the signs land within 0.6 m of the truth (as on the same journey
    with its antenna at the camera) and their heights within 0.3 m; the same bundle without the
    field puts every sign about 0.8 m too low and 1 m further off: the offset is what moved them.
-2. Over HTTP to PostgreSQL + Redis + a real Celery worker: declared, the same, and the journey's
-   report says the offset was applied.
+2. Over HTTP to PostgreSQL + Redis + a real Celery worker: the offset set for the vehicle by an
+   admin (``PUT /api/v1/vehicles/{id}``) and the bundle without the field: the same, and the
+   journey's report says the vehicle's offset was applied.
 3. A bad offset is refused at upload with a 422 naming the field.
 
 Measured on 2026-11-24 (printed; ``-rP`` shows it), median / max sign error and median height
@@ -32,7 +33,7 @@ from app.commands.usage import EXIT_OK
 from app.pipeline.types import CameraModel
 from tests.utils import bundle_factory as bf
 from tests.utils.results.service_support import sign_errors_m, signs_enu
-from tests.utils.stack import auth, processed_by_celery, sqlite_stack
+from tests.utils.stack import ADMIN_KEY, auth, processed_by_celery, sqlite_stack
 
 APPLIED = "GPS antenna offset applied (manifest): forward -1.09 m, left +0.25 m, up -0.72 m"
 
@@ -102,12 +103,21 @@ def test_signmap_process_applies_the_declared_offset(offset_journey_bundle, tmp_
 
 @pytest.mark.slow
 @pytest.mark.postgres
-def test_the_service_applies_the_declared_offset(offset_journey_bundle, own_pg_url, redis_url,
+def test_the_service_applies_the_vehicles_offset(offset_journey_bundle, own_pg_url, redis_url,
                                                  tmp_path):
     bundle, truth = offset_journey_bundle
-    body, features = processed_by_celery(bundle.read_bytes(), truth["camera_id"],
+    vehicle = json.loads(zipfile.ZipFile(bundle).read("manifest.json"))["vehicle_id"]
+    offset = {"forward": -1.09, "left": 0.25, "up": -0.72}
+
+    def set_vehicle(client) -> None:
+        response = client.put(f"/api/v1/vehicles/{vehicle}", headers=auth(ADMIN_KEY),
+                              json={"gps_antenna_offset_m": offset})
+        assert response.status_code == 200, response.text
+
+    undeclared = _without_offset(bundle, tmp_path / "undeclared.zip")
+    body, features = processed_by_celery(undeclared.read_bytes(), truth["camera_id"],
                                          CameraModel(**truth["camera"]), own_pg_url, redis_url,
-                                         tmp_path)
+                                         tmp_path, before_upload=set_vehicle)
     assert body["status"] == "done", body["error"]
     errors, height = _errors(features, truth)
     print(f"over HTTP: median {np.median(list(errors.values())):.2f} m, max "
@@ -115,7 +125,7 @@ def test_the_service_applies_the_declared_offset(offset_journey_bundle, own_pg_u
           f" ({len(errors)} signs)")
     assert len(errors) >= 5 and max(errors.values()) < 0.6, errors
     assert max(abs(h) for h in height.values()) < 0.3, height
-    assert APPLIED in _align_details(body["report"])
+    assert APPLIED.replace("(manifest)", f"(vehicle {vehicle})") in _align_details(body["report"])
 
 
 @pytest.mark.parametrize("offset, detail", [

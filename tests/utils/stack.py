@@ -137,11 +137,13 @@ def upload(client, key: str, data: bytes) -> str:
 
 
 def processed_by_celery(data: bytes, camera_id: str, camera, pg_url: str, redis_url: str,
-                        tmp_path: Path, **overrides) -> tuple[dict, list[dict]]:
+                        tmp_path: Path, before_upload=None, **overrides
+                        ) -> tuple[dict, list[dict]]:
     """Upload the bundle ``data`` as a fleet key to PostgreSQL + Redis with a real Celery worker
     and wait until it ends: (the journey's body, its signs' features). The camera's true
     calibration ``camera`` is stored and reused (``reuse_known_calibration``): these tests are
-    about the way in, not self-calibration. ``overrides``: more ``Settings``."""
+    about the way in, not self-calibration. ``before_upload(client)``: requests made first
+    (an admin's settings); ``overrides``: more ``Settings``."""
     from app.pipeline.config import PipelineConfig
     from tests.e2e.test_fusion_rendered import seed_calibration
 
@@ -153,6 +155,8 @@ def processed_by_celery(data: bytes, camera_id: str, camera, pg_url: str, redis_
     worker = CeleryWorker(stack.settings, tmp_path / "worker.log")
     try:
         with stack.client() as client:
+            if before_upload is not None:
+                before_upload(client)
             journey_id = upload(client, fleet, data)
             body = poll_journey(client, auth(fleet), journey_id,
                                 lambda b: b["status"] in ("done", "failed"), worker=worker)

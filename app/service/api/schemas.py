@@ -7,6 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.pipeline.bundle.manifest import AntennaOffsetIn
+
 JOURNEY_ID_EXAMPLE = "6f1c2a3e-8d4b-4f7e-9a51-0c2d3e4f5a6b"
 # Ids and text filters in paths and queries: PostgreSQL text cannot hold NUL, so one with NUL is
 # refused as invalid input (422) instead of failing in the database (a 500, found by fuzzing).
@@ -309,3 +311,26 @@ class CameraRegistered(CameraOut):
                         "the registered one (not self-calibrated, frames of its size), queued "
                         "now to be processed again with it; empty when nothing is left to "
                         "re-process (the same registration again)")
+
+
+class AntennaOffsetOut(BaseModel):
+    forward: float
+    left: float
+    up: float
+
+
+class VehicleIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    gps_antenna_offset_m: AntennaOffsetIn | None = Field(
+        description="the GPS antenna's position minus the camera's, metres, in the vehicle's axes "
+                    "(forward along travel, left, up), each within ±10 m: applied to the "
+                    "vehicle's journeys whose manifest gives none (a manifest's wins); null "
+                    "forgets it")
+
+
+class VehicleOut(BaseModel):
+    vehicle_id: str
+    gps_antenna_offset_m: AntennaOffsetOut | None
+    updated_by: str | None = Field(None, description="the admin key's name that set it")
+    updated_at: datetime

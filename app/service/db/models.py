@@ -233,6 +233,19 @@ class CameraFitRow(CameraColumns, Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
+class VehicleRow(Base):
+    """What an admin said of a vehicle (``PUT /api/v1/vehicles/{vehicle_id}``): where its GPS
+    antenna sits relative to its camera (``{"forward", "left", "up"}``, metres, the contract's
+    section 1b), applied to its journeys whose manifest gives none (``jobs.run``)."""
+
+    __tablename__ = "vehicles"
+
+    vehicle_id: Mapped[str] = mapped_column(String(200), primary_key=True)
+    gps_antenna_offset_m: Mapped[dict | None] = mapped_column(JSON)
+    updated_by: Mapped[str | None] = mapped_column(String(200))
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
 class MapSignRow(Base):
     """One fused sign of the map (``app.fusion.MapSign``); ``removed_at`` set = a tombstone kept
     for GET /signs/changes. ``cov_enu`` is the (3, 3) ENU covariance as nested lists, m^2."""

@@ -6,6 +6,7 @@ given a calibration that a registration superseded while it ran is queued again 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import shutil
 import threading
@@ -17,11 +18,11 @@ from sqlalchemy import select
 from app.pipeline.bundle import read_bundle
 from app.pipeline.detect import apply_detector, bundle_has_detections
 from app.pipeline.run import process_journey
-from app.pipeline.types import NoTurnError, PipelineError, StageReport
+from app.pipeline.types import AntennaOffset, Journey, NoTurnError, PipelineError, StageReport
 from app.service import storage
 from app.service.jobs import camera_fit, cameras, fusion, state
 from app.service.db.session import session_scope
-from app.service.db.models import CalibrationRow, JourneyRow
+from app.service.db.models import CalibrationRow, JourneyRow, VehicleRow
 from app.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -98,6 +99,7 @@ def run_journey(journey_id: str, settings: Settings,
                               decode_images=True, progress=lambda fraction: progress(
                                   "extract", 0.0, f"video {100 * fraction:.0f} % decoded"))
         progress("extract", 0.0, f"{len(journey.frames)} frames")
+        journey = _with_vehicle_antenna(url, journey)
         size = (journey.image_width, journey.image_height)
         if known_camera is not None and (known_camera.width, known_camera.height) != size:
             # The camera's newest epoch is of other frames: its newest epoch of this journey's
@@ -155,6 +157,21 @@ def run_journey(journey_id: str, settings: Settings,
     finally:
         heartbeat.stopped.set()
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _with_vehicle_antenna(url: str, journey: Journey) -> Journey:
+    """``journey`` with its vehicle's GPS antenna offset (``PUT /api/v1/vehicles/{id}``) when
+    its manifest gives none; a manifest's wins."""
+    if journey.gps_antenna_offset is not None or not journey.vehicle_id:
+        return journey
+    with session_scope(url) as session:
+        row = session.get(VehicleRow, journey.vehicle_id)
+        given = row.gps_antenna_offset_m if row is not None else None
+    if not given:
+        return journey
+    offset = AntennaOffset(float(given["forward"]), float(given["left"]), float(given["up"]),
+                           source=f"vehicle {journey.vehicle_id}")
+    return dataclasses.replace(journey, gps_antenna_offset=offset)
 
 
 def _refit(url: str, journey_id: str, camera_id: str, settings: Settings) -> None:

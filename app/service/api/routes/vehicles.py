@@ -1,0 +1,66 @@
+"""Routes of vehicles (base path /api/v1, admin only): where a vehicle's GPS antenna sits
+relative to its camera, for its journeys whose manifest does not say (issue 67, item 1; the
+worker applies it, ``jobs.run``). A vehicle id is any printable string of the manifest, ``/``
+included, as a camera id is (``routes.cameras``)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Path, status
+from starlette.convertors import PathConvertor, register_url_convertor
+
+from app.service.api.schemas import AUTH_ERRORS, NO_NUL, ErrorOut, VehicleIn, VehicleOut, echoed_id
+from app.service.db.models import VehicleRow, utc_now
+from app.service.deps import Admin, SessionDep
+
+router = APIRouter(prefix="/api/v1")
+
+
+class _VehicleIdConvertor(PathConvertor):
+    regex = r"[\s\S]*"
+
+
+register_url_convertor("vehicle_id", _VehicleIdConvertor())
+VehicleId = Annotated[str, Path(pattern=NO_NUL, max_length=200,
+                                description="the manifest's vehicle_id")]
+
+
+def _out(row: VehicleRow) -> dict[str, Any]:
+    return {"vehicle_id": row.vehicle_id, "gps_antenna_offset_m": row.gps_antenna_offset_m,
+            "updated_by": row.updated_by, "updated_at": row.updated_at}
+
+
+@router.get("/vehicles/{vehicle_id:vehicle_id}", response_model=VehicleOut,
+            summary="A vehicle's GPS antenna offset (admin)",
+            responses={**AUTH_ERRORS, 404: {"model": ErrorOut,
+                                            "description": "nothing was set for this vehicle"}})
+def get_vehicle(vehicle_id: VehicleId, who: Admin, session: SessionDep) -> dict[str, Any]:
+    row = session.get(VehicleRow, vehicle_id)
+    if row is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"nothing set for vehicle {echoed_id(vehicle_id)}")
+    return _out(row)
+
+
+@router.put("/vehicles/{vehicle_id:vehicle_id}", response_model=VehicleOut,
+            summary="Set a vehicle's GPS antenna offset (admin)",
+            description="Where the vehicle's GPS antenna sits relative to its camera, applied to "
+                        "the vehicle's journeys processed from now on whose manifest gives no "
+                        "`gps_antenna_offset_m` (a manifest's wins); the journey's `align` "
+                        "report names the vehicle. Null forgets it. Journeys done before keep "
+                        "their result (Retry runs one again).",
+            responses={**AUTH_ERRORS,
+                       400: {"model": ErrorOut, "description": "the body is not JSON"},
+                       422: {"model": ErrorOut,
+                                            "description": "a missing key, or a value that is "
+                                                           "not a finite number within ±10 m"}})
+def put_vehicle(vehicle_id: VehicleId, body: VehicleIn, who: Admin,
+                session: SessionDep) -> dict[str, Any]:
+    row = session.get(VehicleRow, vehicle_id) or VehicleRow(vehicle_id=vehicle_id)
+    offset = body.gps_antenna_offset_m
+    row.gps_antenna_offset_m = offset.model_dump() if offset is not None else None
+    row.updated_by, row.updated_at = who.name, utc_now()
+    session.add(row)
+    session.flush()
+    return _out(row)
