@@ -48,6 +48,11 @@ def fit_jointly(windows: list[WindowObservations], start: CameraModel, *,
 def _fit(windows, start, max_iterations, function_tolerance, aspect_sigma, threads) -> JointFit:
     import pycolmap
 
+    # As the mapping children do (``sfm._pycolmap``). Each window's scale is free (``Gauge``), so
+    # Ceres warns of steps it could not take in that direction and damps them: not an error.
+    pycolmap.logging.minloglevel = 3
+    pycolmap.logging.logtostderr = True
+
     params = np.asarray(_colmap_camera(pycolmap, start).params, dtype=float)
     parts = []
     for window in windows:
