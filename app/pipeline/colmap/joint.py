@@ -18,10 +18,11 @@ from app.pipeline.colmap.refine import Gauge, _held_fit, refine_all_intrinsics
 from app.pipeline.colmap.sfm import COLMAP_PIXEL_OFFSET, _colmap_camera, camera_model, colmap_pool
 from app.pipeline.types import CameraModel, WindowObservations
 
-# Points per window in the joint adjustment: 8 windows of 8,000 points took minutes; the camera
-# is as well determined from a few thousand per window (the held fit's ordering held on 1,500,
-# ``refine.probe_focal``).
-MAX_POINTS_PER_WINDOW = 3000
+# Points per window in the joint adjustment, a cap (the fleet corpus's windows have 1,200-9,300):
+# thinned to 3,000 the tuning half's cameras were 0.05-0.17 % off in fx, with all their points
+# 0.01-0.10 %, and the distortion 0.46 px off on one camera against 0.09 px, at twice the time
+# (7-20 s for 2-7 windows; docs/decisions/camera-joint-calibration.md).
+MAX_POINTS_PER_WINDOW = 20000
 
 
 @dataclass(frozen=True)
@@ -37,15 +38,17 @@ class JointFit:
 
 def fit_jointly(windows: list[WindowObservations], start: CameraModel, *,
                 max_iterations: int = 1000, function_tolerance: float = 1e-6,
-                aspect_sigma: float = 0.0, threads: int = -1) -> JointFit:
+                aspect_sigma: float = 0.0, threads: int = -1,
+                max_points: int = MAX_POINTS_PER_WINDOW) -> JointFit:
     """The camera that every window of ``windows`` fits best, from ``start``, in a child
-    process (COLMAP can abort the process it runs in)."""
+    process (COLMAP can abort the process it runs in); each window thinned to ``max_points``."""
     with colmap_pool(1) as pool:
         return pool.submit(_fit, windows, start, max_iterations, function_tolerance,
-                           aspect_sigma, threads).result()
+                           aspect_sigma, threads, max_points).result()
 
 
-def _fit(windows, start, max_iterations, function_tolerance, aspect_sigma, threads) -> JointFit:
+def _fit(windows, start, max_iterations, function_tolerance, aspect_sigma, threads,
+         max_points) -> JointFit:
     import pycolmap
 
     # As the mapping children do (``sfm._pycolmap``). Each window's scale is free (``Gauge``), so
@@ -56,7 +59,7 @@ def _fit(windows, start, max_iterations, function_tolerance, aspect_sigma, threa
     params = np.asarray(_colmap_camera(pycolmap, start).params, dtype=float)
     parts = []
     for window in windows:
-        alone = _reconstruction(pycolmap, [thinned(window, MAX_POINTS_PER_WINDOW)], start)[0]
+        alone = _reconstruction(pycolmap, [thinned(window, max_points)], start)[0]
         parts.append(_held_fit(pycolmap, alone, params, 200, threads, function_tolerance))
     rec, gauge, image_part = _merged(pycolmap, parts)
     std = refine_all_intrinsics(pycolmap, rec, function_tolerance=function_tolerance,
