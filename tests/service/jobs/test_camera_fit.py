@@ -72,6 +72,10 @@ def test_the_camera_is_fitted_jointly_and_a_wrong_window_is_left_out(stack):
         assert body["sigma"]["fx"] > 0 and isinstance(body["fy_resolved"], bool)
         assert "joint bundle adjustment of 2" in body["sigma_basis"]
         assert body["epochs"][-1]["calibration_source"] == "joint"
+        # The dashboard's Cameras page says the same.
+        client.post("/admin/login", data={"key": ADMIN_KEY}, follow_redirects=False)
+        page = client.get("/admin/cameras").text
+        assert "Joint calibration" in page and f"/admin/journeys/{wrong}" in page
     with session_scope(url) as session:  # windows are kept with self-calibrations only
         kept = dict(session.execute(select(CalibrationRow.journey_id,
                                            CalibrationRow.window.is_not(None))
