@@ -1,7 +1,7 @@
 """Vehicles: a GPS antenna offset set per vehicle_id by an admin.
 
 ``vehicles``: ``gps_antenna_offset_m`` ({"forward", "left", "up"}, metres) applied to the
-vehicle's journeys whose manifest gives none (issue 67; docs/decisions/antenna-offset.md).
+vehicle's journeys whose manifest gives none (docs/decisions/antenna-offset.md).
 
 Revision ID: 0012
 Revises: 0011

@@ -39,7 +39,7 @@ from sqlalchemy import select
 from app.pipeline.bundle import read_bundle
 from app.commands.service import create_service_app
 from app.service.db.session import session_scope
-from app.service.db.models import JourneyRow, MapSignRow
+from app.service.db.models import JourneyRow, MapSignRow, VehicleRow
 from tests.utils import bundle_factory as bf
 from tests.utils.results import map_support as ms
 from tests.utils.results.service_support import bf_zip, finish, made_result
@@ -84,9 +84,12 @@ def _seed(stack: Stack, app: FastAPI) -> Target:
     with session_scope(stack.url) as session:
         sign_id = session.scalars(select(MapSignRow.id).where(
             MapSignRow.lat_deg.between(world.lat0 - 0.01, world.lat0 + 0.01))).first()
+        vehicle_id = f"fuzz-van-{secrets.token_hex(3)}"  # so that GET /vehicles/{id} answers 200
+        session.add(VehicleRow(vehicle_id=vehicle_id,
+                               gps_antenna_offset_m={"forward": -1.0, "left": 0.0, "up": 0.5}))
     # The factory bundle's camera (its journey's), so that GET /cameras/{camera_id} answers 200.
     return Target(stack, app, keys, {"journey_id": journey_id, "sign_id": sign_id,
-                                     "camera_id": "test-cam"})
+                                     "camera_id": "test-cam", "vehicle_id": vehicle_id})
 
 
 def _journey_data(stack: Stack):
