@@ -238,4 +238,6 @@ def run_process(args) -> int:
         print(f"rejected {r.track_id}: {r.reason}")
     print(f"wrote {out} and {report_path}; stages: "
           + ", ".join(f"{k} {v:.1f}s" for k, v in result.timings_s.items()))
+    for stage, parts in result.stage_parts_s.items():
+        print(f"  {stage}: " + ", ".join(f"{k} {v:.1f}s" for k, v in parts.items()))
     return EXIT_OK

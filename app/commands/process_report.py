@@ -38,6 +38,7 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
                         "stage2_std": {k: (v if math.isfinite(v) else None)
                                        for k, v in zip(INTRINSICS_STD, cal.intrinsics_std)}},
         "timings_s": result.timings_s,
+        "stage_parts_s": result.stage_parts_s,
         "signs": [{"track_id": s.track_id, "class": s.cls, "lat": s.lat_deg, "lon": s.lon_deg,
                    "alt_m": s.alt_m, "std_m": s.std_m, "r95_h_m": s.r95_h_m,
                    "facing_deg": s.facing_deg, "reprojection_rms_px": s.reprojection_rms_px,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.pipeline.colmap.sfm import WindowRequest, WindowResult
+from app.pipeline.colmap.sfm import SfmRun, WindowRequest, WindowResult
 from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import geodesy, gps_track
@@ -27,7 +27,7 @@ from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
 from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, RejectedSign, StageReport, no_progress)
+                                ProgressFn, RejectedSign, StageReport, WindowTime, no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -39,11 +39,15 @@ OTHER_STAGES = {"turns": 0.01, "align": 0.01, "triangulate": 0.03}
 
 
 class _Clock:
-    """Stage timings, and progress as the fraction of the journey's expected work done."""
+    """Stage timings (and their parts: ``JourneyResult.stage_parts_s``), and progress as the
+    fraction of the journey's expected work done."""
 
     def __init__(self, progress: ProgressFn, weights: dict[str, float], *,
-                 timings_s: dict[str, float] | None = None, done: float = 0.0):
+                 timings_s: dict[str, float] | None = None, done: float = 0.0,
+                 parts_s: dict[str, dict[str, float]] | None = None):
         self.timings_s: dict[str, float] = timings_s if timings_s is not None else {}
+        self.parts_s: dict[str, dict[str, float]] = parts_s if parts_s is not None else {}
+        self.windows: list[WindowTime] = []
         self.progress = progress
         self.weights = weights
         self.done = done
@@ -66,6 +70,16 @@ class _Clock:
         self.timings_s[name] = round(seconds, 3)
         self.done = min(1.0, self.done + self.weights.get(name, 0.0))
         log.info("stage %s done in %.1f s %s", name, self.timings_s[name], message)
+
+    def add_sfm(self, name: str, done: SfmRun, frames: list[str]) -> None:
+        """Stage ``name``'s COLMAP run ``done`` (windows of the journey ``frames``, each a
+        label like "12-125"): its parts add to what the stage already spent."""
+        mine = self.parts_s.setdefault(name, {})
+        refine_s = sum(w.refine_s for w in done.windows)
+        for part, seconds in {**done.timings_s, **({"refine": refine_s} if refine_s else {})}.items():
+            mine[part] = round(mine.get(part, 0.0) + seconds, 3)
+        self.windows += [WindowTime(name, label, w.n_input, len(w.image_names), w.mapping_s,
+                                    w.refine_s) for label, w in zip(frames, done.windows)]
 
     def within(self, name: str, fraction: float, message: str) -> None:
         """Progress inside the running stage ``name``: ``fraction`` of it is done."""
@@ -138,6 +152,8 @@ class Reconstruction:
     too_short: tuple[RejectedSign, ...] = ()
     # What the align stage's report says of the positions (the GPS antenna offset applied).
     gps_notes: tuple[str, ...] = ()
+    stage_parts_s: dict[str, dict[str, float]] = field(default_factory=dict)
+    window_times: tuple[WindowTime, ...] = ()
 
 
 def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
@@ -174,7 +190,8 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     calib = _calibrate_stage(job, the_plan, known_camera, ego_sfm)
     poses = _ego_motion_stage(job, the_plan, calib.camera, ego_sfm) if the_plan.tracks else []
     return Reconstruction(calib, the_plan.tracks, poses, xyz_gps, xyz_align, origin,
-                          clock.timings_s, journal.reports, the_plan.too_short, antenna_notes)
+                          clock.timings_s, journal.reports, the_plan.too_short, antenna_notes,
+                          clock.parts_s, tuple(clock.windows))
 
 
 def _at_camera(journey: Journey, xyz_gps: np.ndarray,
@@ -300,8 +317,10 @@ def _map_candidate(job: _Job, candidates: _CandidateProgress, window: Calibratio
         image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
         retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
         retry_below=int(np.ceil(config.calib_retry_below_ratio * len(window.frame_idx))))
-    return stage.run([request], None, on_mapped=candidates.mapped,
-                     on_prepared=candidates.features_matched)[0]
+    done = stage.run([request], None, on_mapped=candidates.mapped,
+                     on_prepared=candidates.features_matched)
+    job.clock.add_sfm("calibrate", done, [f"{first}-{last}"])
+    return done.windows[0]
 
 
 def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel,
@@ -310,12 +329,14 @@ def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel
     ego_windows, clock = the_plan.ego_windows, job.clock
     with job.journal.stage("ego_motion") as entry, \
             clock.stage("ego_motion", f"{len(ego_windows)} windows"):
-        results = ego_sfm.run(ego_motion.requests(
+        done = ego_sfm.run(ego_motion.requests(
             ego_windows, job.names, camera, step=the_plan.ego_step, extra=the_plan.off_grid,
             init_gap_frames=job.config.match_overlap,
             more_init_pairs=job.config.ego_more_init_pairs),
             camera, on_mapped=lambda k, total: clock.within(
                 "ego_motion", k / total, f"{k} of {total} windows mapped"))
+        clock.add_sfm("ego_motion", done, [f"{a}-{b - 1}" for a, b in ego_windows])
+        results = done.windows
         poses = ego_motion.window_poses(ego_windows, results, job.names)
         entry.take(ego_motion.report(ego_windows, results, poses))
         if not poses:
@@ -333,7 +354,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
     too_short = list(recon.too_short)
     if not recon.tracks:
         return JourneyResult(recon.calib, [], too_short, dict(recon.timings_s),
-                             origin_lat_lon_alt=origin_lat_lon_alt, report=list(recon.reports))
+                             origin_lat_lon_alt=origin_lat_lon_alt, report=list(recon.reports),
+                             stage_parts_s=dict(recon.stage_parts_s),
+                             window_times=list(recon.window_times))
     journal = _Journal(list(recon.reports))
     clock = _Clock(progress, OTHER_STAGES, timings_s=dict(recon.timings_s),
                    done=1.0 - OTHER_STAGES["align"] - OTHER_STAGES["triangulate"])
@@ -375,7 +398,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                          trajectory_frame_ids=[journey.frames[i].frame_id for i in traj_idx],
                          trajectory_enu=traj_T[:, :3, 3], gps_enu=xyz_align[traj_idx],
                          trajectory_T_world_cam=traj_T,
-                         origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports)
+                         origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports,
+                         stage_parts_s=dict(recon.stage_parts_s),
+                         window_times=list(recon.window_times))
 
 
 def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarray,

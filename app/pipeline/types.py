@@ -262,6 +262,20 @@ class RejectedSign:
     reason: str
 
 
+@dataclass(frozen=True)
+class WindowTime:
+    """One COLMAP window's wall time: ``stage`` calibrate or ego_motion, ``frames`` its journey
+    frames ("12-125"), images asked for and registered, seconds mapping it (``refine_s`` of
+    which self-calibration's stage 2)."""
+
+    stage: str
+    frames: str
+    n_images: int
+    n_registered: int
+    mapping_s: float
+    refine_s: float = 0.0
+
+
 @dataclass
 class JourneyResult:
     """Everything the pipeline produces for one journey."""
@@ -280,6 +294,11 @@ class JourneyResult:
     gps_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     origin_lat_lon_alt: tuple[float, float, float] = (0.0, 0.0, 0.0)
     report: list["StageReport"] = field(default_factory=list)  # one per stage that ran, in order
+    # Where a stage's seconds went, by part: calibrate and ego_motion's ``extract``/``match``
+    # (SIFT) or ``klt``/``import``/``verify``, ``map`` (its windows side by side), ``refine``
+    # (of map: self-calibration's stage 2), ``wait`` and ``map_idle_core_s`` (``colmap.sfm``).
+    stage_parts_s: dict[str, dict[str, float]] = field(default_factory=dict)
+    window_times: list[WindowTime] = field(default_factory=list)  # every window mapped, in order
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,24 @@ def naive_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                          origin_lat_lon_alt=(origin.lat0_deg, origin.lon0_deg, origin.alt0_m))
 
 
+def plain_sift_s(bundle: Path, workdir: Path, max_frames: int | None) -> tuple[int, float]:
+    """(frames, wall seconds) of pycolmap's SIFT extraction with default options over the
+    bundle's first ``max_frames`` frames (None: all), the bundle read before the clock starts:
+    the speed yardstick ``signmap bench`` divides the pipeline's frames/s by (issue 68)."""
+    import pycolmap
+
+    from app.pipeline.bundle import read_bundle
+
+    pycolmap.logging.minloglevel = 2
+    journey = read_bundle(bundle, workdir / "bundle")
+    names = [f.path.name for f in journey.frames][:max_frames]
+    t0 = time.perf_counter()
+    pycolmap.extract_features(workdir / "sift.db", journey.frames[0].path.parent,
+                              image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              device=pycolmap.Device.cpu)
+    return len(names), time.perf_counter() - t0
+
+
 def _triangulate(journey: Journey, frame_idx: np.ndarray, T_world_cam: np.ndarray,
                  camera: CameraModel, origin: geodesy.LocalFrame, config: PipelineConfig):
     row = {int(i): k for k, i in enumerate(frame_idx)}

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import json
 import os
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.pipeline.colmap.sfm import colmap_pool
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel
 from bench.paper import plots, tables
@@ -68,6 +70,9 @@ def run_summary(out: RunOutput, truth: dict, task: RunTask) -> dict:
               "cpu_s": round(out.cpu_s, 1),
               "timings_s": out.timings_s, "peak_rss_mb": peak}
     if out.result is not None:
+        record["stage_parts_s"] = out.result.stage_parts_s
+        record["windows"] = [dataclasses.asdict(w) for w in out.result.window_times]
+    if out.result is not None:
         record.update(evaluate_result(out.result, truth))
     return record
 
@@ -101,7 +106,20 @@ def run_journey(spec: JourneySpec, cache_dir: Path, base: PipelineConfig,
             + (f" ({out.error})" if out.error else ""))
         if variant == "ours" and out.result is not None:
             calibrations[spec.name] = out.result.calibration.camera
+    if spec.sift_frames:
+        record["plain_sift"] = _plain_sift(bundle, spec.sift_frames)
+        log(f"{spec.name}: plain SIFT extraction at {record['plain_sift']['fps']:.2f} frames/s")
     return record, outputs, truth
+
+
+def _plain_sift(bundle: Path, frames: int) -> dict:
+    """Plain SIFT extraction's frames/s over the bundle's first ``frames``, in a child process
+    of its own like the runs it is compared with."""
+    from bench.paper.naive import plain_sift_s
+
+    with tempfile.TemporaryDirectory(prefix="bench-sift-") as tmp, colmap_pool(1) as pool:
+        n, wall_s = pool.submit(plain_sift_s, bundle, Path(tmp), frames).result()
+    return {"frames": n, "wall_s": round(wall_s, 2), "fps": n / wall_s}
 
 
 def compare(ours: dict, naive: dict) -> dict:

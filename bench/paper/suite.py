@@ -33,12 +33,25 @@ class JourneySpec:
     known_from: str | None = None
     # The naive baseline costs ~2.5 s per frame: it runs on the first frames only.
     naive_max_frames: int | None = None
+    # Frames of plain SIFT extraction timed beside the runs (``naive.plain_sift_s``; its cost is
+    # linear in the frames, so a prefix gives its rate); 0: not timed.
+    sift_frames: int = 0
 
 
 def quick_suite() -> list[JourneySpec]:
-    """One short turn journey: ours, the ground-truth camera and the naive pipeline on a prefix."""
+    """One short turn journey: ours, the ground-truth camera and the naive pipeline on a prefix;
+    and a long one at a dashcam's usual spacing (frames 1.05 m apart: SIFT ego-motion), ours and a
+    calibrated camera's run, timed against plain SIFT extraction (issue 68)."""
     return [JourneySpec("turn-70", SynthConfig(n_frames=70, turns=1), ("ours", "gt", "naive"),
-                        "70 frames, one turn", naive_max_frames=30)]
+                        "70 frames, one turn", naive_max_frames=30),
+            long_journey()]
+
+
+def long_journey() -> JourneySpec:
+    return JourneySpec("long-600", SynthConfig(n_frames=600, turns=2, speed_mps=10.5,
+                                               world_seed=5, seed=5),
+                       ("ours", "gt"), "600 frames, two turns, 10.5 m/s (frames 1.05 m apart)",
+                       sift_frames=120)
 
 
 def full_suite() -> list[JourneySpec]:

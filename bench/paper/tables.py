@@ -159,9 +159,65 @@ def table_failures(report: dict) -> str:
     return section("Failed runs", ["journey", "variant", "status", "reason"], rows)
 
 
+# Where a run's time goes (issue 68): each stage's parts, each COLMAP window, and the speed as a
+# ratio to plain SIFT extraction of the same frames in the same run (the machine's noise divides
+# out of a ratio, not out of seconds).
+NOTE_PARTS = (
+    "Seconds per part of the COLMAP stages (`JourneyResult.stage_parts_s`). extract / match: "
+    "SIFT; klt / import / verify: KLT tracks (tracked in a thread while calibration runs), "
+    "imported into COLMAP, verified; wait: the stage waiting for those tracks; map: all windows, "
+    "mapped side by side (bundle adjustment included); refine: of map, self-calibration's stage 2; "
+    "idle core-s: the core-seconds mapping processes had no window left (wall x processes minus "
+    "the windows' own seconds).")
+NOTE_WINDOWS = "Each COLMAP window: the frames it spans, images asked for and registered, seconds."
+NOTE_RATIO = (
+    "Plain SIFT: pycolmap's `extract_features` with its default options over the journey's first "
+    "frames, timed in the same run, its own child process. Ratio: the run's frames/s end to end "
+    "(bundle read included) over plain SIFT's; issue 68's bar is 2.5.")
+
+
+def table_time_parts(report: dict) -> str:
+    rows = []
+    for name, _, variant, run in _runs(report):
+        for stage, parts in run.get("stage_parts_s", {}).items():
+            shown = ", ".join(f"{'idle core-s' if k == 'map_idle_core_s' else k} {v:.1f}"
+                              for k, v in parts.items())
+            rows.append([name, variant, stage, fmt(run["timings_s"].get(stage), 1), shown])
+    if not rows:
+        return "### Where the time goes\n\nNo run mapped with COLMAP."
+    return section("Where the time goes", ["journey", "variant", "stage", "stage (s)", "parts (s)"],
+                   rows, NOTE_PARTS)
+
+
+def table_windows(report: dict) -> str:
+    rows = [[name, variant, w["stage"], w["frames"], f"{w['n_registered']} / {w['n_images']}",
+             fmt(w["mapping_s"], 1), fmt(w["refine_s"], 1) if w["refine_s"] else ""]
+            for name, _, variant, run in _runs(report) for w in run.get("windows", [])]
+    if not rows:
+        return "### COLMAP windows\n\nNone."
+    return section("COLMAP windows", ["journey", "variant", "stage", "frames",
+                                      "registered / images", "mapping (s)", "of which refine (s)"],
+                   rows, NOTE_WINDOWS)
+
+
+def table_sift_ratio(report: dict) -> str:
+    rows = []
+    for name, journey, variant, run in _runs(report, ("ours", "gt")):
+        sift = journey.get("plain_sift")
+        if sift:
+            rows.append([name, variant, fmt(run["fps"], 2),
+                         f"{fmt(sift['fps'], 2)} ({sift['frames']} frames)",
+                         f"{fmt(run['fps'] / sift['fps'], 2)}×"])
+    if not rows:
+        return "### Ratio to plain SIFT extraction\n\nNo journey timed plain SIFT."
+    return section("Ratio to plain SIFT extraction",
+                   ["journey", "variant", "frames/s", "plain SIFT frames/s", "ratio"], rows,
+                   NOTE_RATIO)
+
+
 REPORT_TABLES: list[Callable[[dict], str]] = [
-    table_calibration, table_ego_motion, table_signs, table_speed, table_baselines,
-    table_failures]
+    table_calibration, table_ego_motion, table_signs, table_speed, table_time_parts,
+    table_windows, table_sift_ratio, table_baselines, table_failures]
 
 
 def render_report(report: dict) -> str:

@@ -18,6 +18,7 @@ from bench.paper.run_pipeline import prefix
 from bench.paper.runner import compare, finite
 from bench.paper.plots import plot_sensitivity
 from bench.paper.sensitivity import GROUPS, perturbed_cameras, sensitivity_rows, table_sensitivity
+from bench.paper import tables
 from bench.paper.tables import render_report
 
 CAMERA = CameraModel(1242, 375, 959.2, 952.9, 694.4, 241.7, -0.369, 0.158)
@@ -176,12 +177,33 @@ def test_report_renders_failed_and_missing_runs():
     assert "### Table I" in md and "### Ours vs naive COLMAP" in md
 
 
+def test_report_says_where_the_time_went_and_the_ratio_to_plain_sift():
+    run = {"status": "ok", "fps": 5.0, "wall_s": 120.0, "n_frames": 600,
+           "timings_s": {"read": 10.0, "ego_motion": 80.0},
+           "stage_parts_s": {"ego_motion": {"extract": 50.0, "match": 10.0, "map": 19.0,
+                                            "map_idle_core_s": 4.5}},
+           "windows": [{"stage": "ego_motion", "frames": "0-113", "n_images": 57,
+                        "n_registered": 55, "mapping_s": 9.5, "refine_s": 0.0}]}
+    report = {"journeys": {"long": {"plain_sift": {"frames": 120, "wall_s": 60.0, "fps": 2.0},
+                                    "runs": {"gt": run}}}}
+    assert tables.table_time_parts(report).splitlines()[-1] == (
+        "| long | gt | ego_motion | 80.0 | extract 50.0, match 10.0, map 19.0, idle core-s 4.5 |")
+    assert tables.table_windows(report).splitlines()[-1] == (
+        "| long | gt | ego_motion | 0-113 | 55 / 57 | 9.5 |  |")
+    assert tables.table_sift_ratio(report).splitlines()[-1] == (
+        "| long | gt | 5.00 | 2.00 (120 frames) | 2.50× |")
+
+
 @pytest.mark.slow
 @pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_quick_bench_writes_tables_json_and_plots(tmp_path):
     from bench.paper.runner import run_bench
 
-    md_path, json_path = run_bench(quick=True, out_dir=tmp_path, cache_dir=REPO / "bench/cache")
+    from bench.paper.suite import quick_suite
+
+    # turn-70 only: long-600's runs are the bench's own (minutes more).
+    md_path, json_path = run_bench(quick=True, out_dir=tmp_path, cache_dir=REPO / "bench/cache",
+                                   suite=quick_suite()[:1])
     report = json.loads(json_path.read_text())
     assert set(report) == {"meta", "journeys", "comparisons"}
     assert report["meta"]["quick"] is True
@@ -200,7 +222,8 @@ def test_quick_bench_writes_tables_json_and_plots(tmp_path):
     assert report["comparisons"]["turn-70"]["speed_ratio"] > 0
     assert (tmp_path / journey["plot"]).stat().st_size > 10_000
     md = md_path.read_text()
+    assert {"calibrate", "ego_motion"} <= set(journey["runs"]["ours"]["stage_parts_s"])
     for heading in ("### Table I", "### Table II", "### Tables III/IV", "### Speed and memory",
-                    "### Ours vs naive COLMAP"):
+                    "### Where the time goes", "### COLMAP windows", "### Ours vs naive COLMAP"):
         assert heading in md
     assert "| turn-70 | self | stage 2 |" in md

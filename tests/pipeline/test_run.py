@@ -129,6 +129,32 @@ def test_a_processed_journey_reports_every_stage_in_order(turn_run):
     assert [StageReport.from_json(r) for r in written] == result.report
 
 
+def test_a_processed_journey_says_where_its_time_went(turn_run):
+    result = turn_run.result
+    calibrate, ego = result.stage_parts_s["calibrate"], result.stage_parts_s["ego_motion"]
+    # The calibration candidate's SIFT, matched and mapped, then stage 2; the ego windows' KLT
+    # tracks, imported, verified and mapped.
+    assert {"extract", "match", "map", "refine", "map_idle_core_s"} <= set(calibrate)
+    assert {"klt", "wait", "import", "verify", "map", "map_idle_core_s"} <= set(ego)
+    for stage, parts in result.stage_parts_s.items():
+        assert all(v >= 0 for v in parts.values()), parts
+        assert parts["map"] > 0
+        # The parts ran inside the stage (klt may run in a thread during calibration; refine is
+        # part of map).
+        inside = sum(v for k, v in parts.items() if k not in ("klt", "refine", "map_idle_core_s"))
+        assert inside <= result.timings_s[stage] + 0.05, (stage, parts, result.timings_s)
+    first, end = result.calibration.windows[0]
+    windows = {w.stage: [] for w in result.window_times}
+    for w in result.window_times:
+        windows[w.stage].append(w)
+        assert 0 < w.n_registered <= w.n_images and w.mapping_s > 0
+    accepted = [w for w in windows["calibrate"] if w.frames.startswith(f"{first}-")]
+    assert accepted and all(0 < w.refine_s < w.mapping_s for w in accepted)
+    ego_report = result.report[2]
+    assert len(windows["ego_motion"]) == len(ego_report.details)
+    assert all(" mapped in " in d for d in ego_report.details)
+
+
 def test_straight_journey_needs_a_known_calibration(straight_journey_bundle, tmp_path):
     bundle, truth = straight_journey_bundle
     journey = read_bundle(bundle, tmp_path / "bundle")

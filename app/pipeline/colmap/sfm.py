@@ -72,6 +72,7 @@ class WindowResult:
     n_input: int = 0
     error: str | None = None
     mapping_s: float = 0.0  # wall time COLMAP spent mapping (and refining) this window
+    refine_s: float = 0.0  # of which self-calibration's stage 2 (and its focal probe)
     # Stage 2's sigma(fx) / fx from its covariance (nan: not a calibration, or not estimable),
     # and its sigma of each of ``types.INTRINSICS_STD`` (px for fx, fy, cx, cy).
     focal_std_rel: float = float("nan")
@@ -83,6 +84,17 @@ class WindowResult:
     probe_moves: tuple[float, ...] = ()
     unprobed_camera: CameraModel | None = None  # stage 2's camera before those
     observations: WindowObservations | None = None  # a calibration's reconstruction, kept
+
+
+@dataclass(frozen=True)
+class SfmRun:
+    """A stage's COLMAP work: one result per requested window, in order, and where its wall time
+    went (``timings_s``): ``extract`` and ``match`` (SIFT), or ``import`` and ``verify`` (KLT
+    tracks); ``map``, all windows side by side; ``map_idle_core_s``, the core-seconds the mapping
+    processes sat without a window (the last window mapping alone)."""
+
+    windows: list[WindowResult]
+    timings_s: dict[str, float]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,7 +133,7 @@ class ImportedFeatures:
 
 
 def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None,
-            on_prepared: Callable[[], None] | None = None) -> list[WindowResult]:
+            on_prepared: Callable[[], None] | None = None) -> SfmRun:
     """Extract (or import) and match features, then map every window of ``job``, in child
     processes; one result per window.
 
@@ -148,14 +160,17 @@ def run_sfm(job: SfmJob, *, on_mapped: Callable[[int, int], None] | None = None,
     except cf.process.BrokenProcessPool as exc:
         raise PipelineError("colmap", "COLMAP aborted the process (see the worker log); "
                                       "the images may be too few or too poor to match") from exc
-    if "extract" in timings_s:
-        log.info("COLMAP: features of %d images %s in %.1f s, matched in %.1f s",
+    timings_s["map_idle_core_s"] = max(
+        0.0, workers * timings_s["map"] - sum(r.mapping_s for r in results))
+    if timings_s.keys() & {"extract", "import"}:
+        log.info("COLMAP: features of %d images %s in %.1f s, %s in %.1f s",
                  len(job.imported.image_names) if job.imported else len(job.extract_names),
-                 "imported" if job.imported else "extracted", timings_s["extract"],
-                 timings_s["match"])
+                 *(("imported", timings_s["import"], "verified", timings_s["verify"])
+                   if job.imported else
+                   ("extracted", timings_s["extract"], "matched", timings_s["match"])))
     log.info("COLMAP: %d windows mapped in %.1f s by %d processes (per window %s s)",
              len(results), timings_s["map"], workers, [r.mapping_s for r in results])
-    return results
+    return SfmRun(results, {k: round(v, 3) for k, v in timings_s.items()})
 
 
 def colmap_pool(workers: int) -> cf.ProcessPoolExecutor:
@@ -285,7 +300,7 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
                                num_threads=job.process.threads)
     pycolmap.geometric_verification(database, verifier_options=verifier,
                                     two_view_geometry_options=verify)
-    return {"extract": t1 - t0, "match": time.perf_counter() - t1}
+    return {"import": t1 - t0, "verify": time.perf_counter() - t1}
 
 
 def _colmap_camera(pycolmap, camera: CameraModel):
@@ -368,6 +383,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     stage1 = camera_model(next(iter(rec.cameras.values())))
     std, moves, unprobed = None, [], None
+    t_refine = time.perf_counter()
     if window.calibrate:
         from app.pipeline.colmap.refine import probe_focal, refine_all_intrinsics
 
@@ -385,6 +401,7 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                 max_points=job.mapping.stage2_probe_points, threads=job.process.threads)
             std = std if probed_std is None else probed_std
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
+    result.refine_s = round(time.perf_counter() - t_refine, 3) if window.calibrate else 0.0
     result.probe_moves = tuple(moves)
     result.unprobed_camera = unprobed if moves else None
     if window.calibrate:

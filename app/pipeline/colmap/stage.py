@@ -34,6 +34,7 @@ class Correspondences:
 
     extract_names: list[str]
     imported: sfm.ImportedFeatures | None = None
+    tracked_s: float = 0.0  # wall seconds spent tracking the KLT features
 
 
 class StageSfm:
@@ -54,12 +55,14 @@ class StageSfm:
         self.frame_idx = np.asarray(frame_idx, int)
         self._lock = threading.Lock()
         self._features: Correspondences | None = None
+        self._tracked_by: int | None = None  # the thread that computed them
 
     def correspondences(self) -> Correspondences:
         """The stage's correspondences; computed once."""
         with self._lock:
             if self._features is None:
                 self._features = self._compute()
+                self._tracked_by = threading.get_ident()
             return self._features
 
     def _compute(self) -> Correspondences:
@@ -72,18 +75,24 @@ class StageSfm:
             [f.path.name for f in self.journey.frames], None, step=self.step,
             overlap=self.config.klt_pair_overlap,
             options=KltOptions(max_corners=self.config.klt_max_corners))
-        log.info("KLT: %d frames tracked in %.1f s, %d tentative pairs", len(frames),
-                 time.perf_counter() - t0, len(imported.matches))
-        return Correspondences([], imported)
+        tracked_s = time.perf_counter() - t0
+        log.info("KLT: %d frames tracked in %.1f s, %d tentative pairs", len(frames), tracked_s,
+                 len(imported.matches))
+        return Correspondences([], imported, tracked_s)
 
     def run(self, requests: list[sfm.WindowRequest], camera: CameraModel | None, *,
             on_mapped: Callable[[int, int], None] | None = None,
-            on_prepared: Callable[[], None] | None = None) -> list[sfm.WindowResult]:
+            on_prepared: Callable[[], None] | None = None) -> sfm.SfmRun:
         """Map ``requests``; ``camera`` None: intrinsics unknown (imported pairs are verified
         without them). ``on_prepared()`` is called when the features are matched,
-        ``on_mapped(k, total)`` as windows finish."""
+        ``on_mapped(k, total)`` as windows finish. Its ``timings_s`` add ``klt`` (tracking, in
+        whichever thread did it) and ``wait`` (for tracking begun in another thread)."""
         cfg = self.config
+        t0 = time.perf_counter()
         features = self.correspondences()
+        waited_s = time.perf_counter() - t0
+        if self._tracked_by == threading.get_ident():
+            waited_s -= features.tracked_s
         extract, imported = features.extract_names, features.imported
         if imported is not None:
             imported = replace(imported, camera=camera)
@@ -97,7 +106,10 @@ class StageSfm:
                 overlap=cfg.match_overlap),
             mapping=_mapping(cfg), process=_process(cfg),
             verbose=self.verbose, imported=imported, feature_cache=self.feature_cache)
-        return sfm.run_sfm(job, on_mapped=on_mapped, on_prepared=on_prepared)
+        done = sfm.run_sfm(job, on_mapped=on_mapped, on_prepared=on_prepared)
+        klt = {"klt": round(features.tracked_s, 3), "wait": round(max(0.0, waited_s), 3)}
+        return replace(done, timings_s={**(klt if imported is not None else {}),
+                                        **done.timings_s})
 
     def _gray(self, path: Path) -> np.ndarray:
         return read_gray(path, self.stage)

@@ -158,6 +158,6 @@ def report(windows: list[tuple[int, int]], results: list[WindowResult],
     """The ego_motion stage's report: each window's registration, or why it failed."""
     details = tuple(f"frames {a}-{b - 1}: " + (r.error or f"{len(r.image_names)}/{r.n_input} "
                                                 f"registered, {r.reprojection_error_px:.2f} px")
-                    for (a, b), r in zip(windows, results))
+                    + f", mapped in {r.mapping_s:.1f} s" for (a, b), r in zip(windows, results))
     return StageReport("ego_motion", f"{len(poses)} of {len(windows)} windows reconstructed",
                        details)
