@@ -25,10 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import quad
 from scipy.optimize import brentq
 from scipy.special import erf
-from scipy.stats import norm
 
 
 @dataclass(frozen=True)
@@ -100,13 +98,25 @@ def horizontal_radius_m(cov_enu: np.ndarray, p: float = 0.95) -> float:
     """Radius of the circle round the estimate that holds the true position with probability ``p``,
     for the horizontal (east, north) part of ``cov_enu`` (exact for a Gaussian, elongated or not)."""
     lam2, lam1 = np.clip(np.linalg.eigvalsh(np.asarray(cov_enu, float)[:2, :2]), 1e-12, None)
-
-    def inside(r: float) -> float:  # P(lam1 z1^2 + lam2 z2^2 <= r^2) - p, z1, z2 ~ N(0, 1)
-        a = r / np.sqrt(lam2)
-        given_z2 = quad(lambda z: norm.pdf(z) * erf(np.sqrt(max(r * r - lam2 * z * z, 0.0)
-                                                            / (2.0 * lam1))),
-                        -min(a, 40.0), min(a, 40.0), limit=200)[0]
-        return given_z2 - p
-
     hi = np.sqrt(-2.0 * np.log(1.0 - p) * lam1) + 4.0 * np.sqrt(lam2)  # surely outside
-    return float(brentq(inside, 0.0, hi, xtol=1e-6))
+    return float(brentq(lambda r: _inside(r, lam1, lam2) - p, 0.0, hi, xtol=1e-6))
+
+
+# Gauss-Legendre nodes on [-1, 1]: the integral below is smooth, and a fixed rule evaluated at
+# once is ~1000x faster than adaptive quadrature of scalar calls (0.43 s a sign with scipy's
+# quad of norm.pdf, most of the triangulate stage).
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(64)
+_Z_MAX = 8.0  # a standard normal holds 1e-15 beyond 8 sigmas
+
+
+def _inside(r: float, lam1: float, lam2: float) -> float:
+    """P(lam1 z1^2 + lam2 z2^2 <= r^2), z1, z2 ~ N(0, 1): over z2, the chance that z1 fits."""
+    a = r / np.sqrt(lam2)
+    if a <= _Z_MAX:  # z2 = a sin(t): the square root's kink at z2 = +-a becomes smooth
+        t = 0.5 * np.pi * _NODES
+        z = a * np.sin(t)
+        f = (np.exp(-0.5 * z * z) * erf(r * np.cos(t) / np.sqrt(2.0 * lam1)) * a * np.cos(t))
+        return float(0.5 * np.pi * (_WEIGHTS @ f) / np.sqrt(2.0 * np.pi))
+    z = _Z_MAX * _NODES
+    f = np.exp(-0.5 * z * z) * erf(np.sqrt((r * r - lam2 * z * z) / (2.0 * lam1)))
+    return float(_Z_MAX * (_WEIGHTS @ f) / np.sqrt(2.0 * np.pi))
