@@ -56,6 +56,9 @@ def add_parsers(sub) -> None:
                    help="journeys rendered in parallel (default: %(default)s)")
     c.add_argument("--max-frames", type=int, default=None,
                    help="cap on frames per journey (default 300)")
+    c.add_argument("--frame-spacing-m", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="with --n: only journeys whose consecutive frames lie LO-HI m apart at "
+                   "the cruise speed, --n / 2 per half")
     p.set_defaults(func=run_synth)
 
 
@@ -85,8 +88,10 @@ def run_corpus(args) -> int:
 
     t0 = time.perf_counter()
     write = write_corpus if args.n is not None else write_fleet
+    spacing = ({"frame_spacing_m": tuple(args.frame_spacing_m)}
+               if args.n is not None and args.frame_spacing_m else {})
     path = write(args.n if args.n is not None else args.cameras, args.seed, Path(args.out),
-                 workers=args.workers, max_frames=args.max_frames or MAX_FRAMES)
+                 workers=args.workers, max_frames=args.max_frames or MAX_FRAMES, **spacing)
     n = len(json.loads(path.read_text())["journeys"])
     print(path)
     print(f"{n} journeys in {time.perf_counter() - t0:.1f} s", file=sys.stderr)

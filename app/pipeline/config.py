@@ -149,15 +149,10 @@ class PipelineConfig(BaseModel):
         40, description="stretches near signs at most this many frames apart are joined")
     ego_front_end: Literal["klt", "sift"] = Field(
         "klt", description="how ego-motion finds correspondences between frames")
-    # KLT loses near corners between frames metres apart (docs/decisions/ego-sift-spacing.md);
-    # following them through every frame between costs less than SIFT
-    # (docs/decisions/ego-klt-every-frame.md).
+    # KLT loses frames metres apart (docs/decisions/ego-sift-spacing.md); cheaper ways there lost
+    # signs (docs/decisions/ego-sift-cost.md).
     ego_sift_min_spacing_m: float = Field(
-        1.7, description="KLT's longest step, m: mapped frames farther apart are tracked through "
-        "the frames between, or get SIFT where consecutive frames are (0: KLT always)")
-    ego_klt_every_frame: bool = Field(
-        True, description="KLT through the frames between mapped ones lying farther apart than "
-        "ego_sift_min_spacing_m (false: SIFT there)")
+        1.7, description="SIFT instead of KLT where mapped frames lie farther apart, m (0: never)")
     klt_max_corners: int = Field(600, description="KLT corners kept per frame")
     klt_pair_overlap: int = Field(4, description="KLT: mapped frames a frame is paired with ahead")
 

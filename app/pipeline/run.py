@@ -186,7 +186,6 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
     job = _Job(journey, config, workdir, verbose, journal, clock)
     ego_sfm = StageSfm("ego_motion", workdir / "sfm_ego", journey, the_plan.ego_frames,
                        step=the_plan.ego_step, front_end=the_plan.ego_front_end, config=config,
-                       track_every_frame=the_plan.ego_track_every_frame,
                        verbose=verbose)
     calib = _calibrate_stage(job, the_plan, known_camera, ego_sfm)
     poses = _ego_motion_stage(job, the_plan, calib.camera, ego_sfm) if the_plan.tracks else []

@@ -83,10 +83,32 @@ def _log_line(e: dict) -> str:
 
 
 def write_corpus(n: int, seed: int, out: Path, *, workers: int = 1,
-                 max_frames: int = MAX_FRAMES) -> Path:
-    """Journeys of seeds ``seed .. seed + n - 1`` into ``out``; returns ``out/corpus.json``."""
-    return _write_index(list(range(seed, seed + n)), write_journey_dir, out, workers, max_frames,
-                        {"seed": seed, "n": n})
+                 max_frames: int = MAX_FRAMES,
+                 frame_spacing_m: tuple[float, float] | None = None) -> Path:
+    """Journeys of seeds ``seed .. seed + n - 1`` into ``out`` (with ``frame_spacing_m``, those of
+    ``spacing_seeds``); returns ``out/corpus.json``."""
+    seeds = (list(range(seed, seed + n)) if frame_spacing_m is None
+             else spacing_seeds(n, seed, max_frames, frame_spacing_m))
+    return _write_index(seeds, write_journey_dir, out, workers, max_frames,
+                        {"seed": seed, "n": n} | ({"frame_spacing_m": list(frame_spacing_m)}
+                                                  if frame_spacing_m else {}))
+
+
+def spacing_seeds(n: int, seed: int, max_frames: int, frame_spacing_m: tuple[float, float]
+                  ) -> list[int]:
+    """The first ``n // 2`` tuning and ``n // 2`` check seeds from ``seed`` on whose consecutive
+    frames lie more than lo and at most hi metres apart at the cruise speed (``frame_spacing_m``):
+    a corpus of the journeys one front end or another serves (issue 68's)."""
+    lo, hi = frame_spacing_m
+    picked: dict[str, list[int]] = {"tuning": [], "check": []}
+    candidate = seed
+    while min(map(len, picked.values())) < n // 2:
+        _, params = draw_journey(candidate, max_frames)
+        half = picked[params["half"]]
+        if lo < params["speed_mps"] / params["fps"] <= hi and len(half) < n // 2:
+            half.append(candidate)
+        candidate += 1
+    return picked["tuning"] + picked["check"]
 
 
 def write_fleet(cameras: int, seed: int, out: Path, *, workers: int = 1,

@@ -277,3 +277,15 @@ def test_tiny_fleet_on_disk(tmp_path):
     manifest = json.loads(zipfile.ZipFile(tmp_path / names[1] / "bundle.zip")
                           .read("manifest.json"))
     assert manifest["camera_id"] == "fleet-0010"
+
+
+def test_a_spacing_corpus_takes_the_journeys_of_that_spacing_half_from_each_half():
+    from app.synth.corpus import spacing_seeds
+    from app.synth.draw import draw_journey
+
+    seeds = spacing_seeds(6, 5000, 200, (0.9, 1.65))
+    assert seeds == [5006, 5014, 5016, 5009, 5013, 5021]  # issue 68's corpus begins so
+    for seed in seeds:
+        params = draw_journey(seed, 200)[1]
+        assert 0.9 < params["speed_mps"] / params["fps"] <= 1.65
+        assert params["half"] == ("tuning" if seed % 2 == 0 else "check")

@@ -126,32 +126,20 @@ def _new_corners(image: np.ndarray, pts: np.ndarray, options: KltOptions) -> np.
     return corners.reshape(-1, 2).astype(np.float32)
 
 
-def through_frames(frame_idx: np.ndarray, step: int) -> np.ndarray:
-    """(T,) sorted frames: ``frame_idx`` and every frame between two of them at most ``step``
-    apart, for tracks to follow corners frame by frame between the mapped frames."""
-    frame_idx = np.asarray(frame_idx, dtype=int)
-    between = [np.arange(a, b) for a, b in zip(frame_idx[:-1], frame_idx[1:]) if b - a <= step]
-    return np.unique(np.concatenate([frame_idx, *between]))
-
-
 def klt_correspondences(frame_idx: np.ndarray, images: Iterable[np.ndarray],
                         frame_names: list[str], camera: CameraModel | None, *, step: int,
-                        overlap: int, options: KltOptions = KltOptions(), min_matches: int = 15,
-                        tracked_idx: np.ndarray | None = None) -> ImportedFeatures:
-    """KLT correspondences for COLMAP over the frames ``frame_idx`` (sorted). ``images`` are the
-    frames tracked, 8-bit grayscale, in order: ``frame_idx``'s own, or with ``tracked_idx``
-    (``through_frames``) those, the frames between included. Tracks break where two mapped frames
-    are more than ``step`` frames apart. Every pair up to ``overlap`` frames of ``frame_idx``
-    apart, with no break between them and at least ``min_matches`` shared tracks, is a tentative
-    pair (COLMAP verifies it).
+                        overlap: int, options: KltOptions = KltOptions(), min_matches: int = 15
+                        ) -> ImportedFeatures:
+    """KLT correspondences for COLMAP over the frames ``frame_idx`` (sorted; ``images`` are those
+    frames, 8-bit grayscale, in the same order). Tracks break where two of them are more than
+    ``step`` frames apart. Every pair up to ``overlap`` frames of ``frame_idx`` apart, with no
+    break between them and at least ``min_matches`` shared tracks, is a tentative pair (COLMAP
+    verifies it).
 
     Tracking every frame instead of every ``step``-th gave the same calibration accuracy on
-    turn-70 (0.33 px either way), so by default only the mapped frames are read and tracked;
-    where those lie metres apart KLT's local search loses near corners between them, and
-    following them through the frames between keeps each search to one frame's motion."""
+    turn-70 (0.33 px either way), so only the mapped frames are read and tracked."""
     frame_idx = np.asarray(frame_idx, dtype=int)
-    tracked = frame_idx if tracked_idx is None else np.asarray(tracked_idx, dtype=int)
-    broken = np.concatenate([[False], np.diff(tracked) > (step if tracked_idx is None else 1)])
+    broken = np.concatenate([[False], np.diff(frame_idx) > step])
 
     def with_breaks():
         for image, brk in zip(images, broken):
@@ -160,16 +148,14 @@ def klt_correspondences(frame_idx: np.ndarray, images: Iterable[np.ndarray],
             yield image
 
     tracks = track_features(with_breaks(), options)
-    mapped = np.flatnonzero(np.isin(tracked, frame_idx))
-    segment = np.cumsum(broken)[mapped]  # no track crosses from one segment into the next
-    keypoints = [tracks.keypoints_px[k] for k in mapped]
-    mapped_tracks = FrameTracks(keypoints, [tracks.track_ids[k] for k in mapped])
+    segment = np.cumsum(broken)  # no track crosses from one segment into the next
     matches = {}
     for k1 in range(len(frame_idx)):
         for k2 in range(k1 + 1, min(len(frame_idx), k1 + overlap + 1)):
             if segment[k2] != segment[k1]:
                 break
-            m = mapped_tracks.pair_matches(k1, k2)
+            m = tracks.pair_matches(k1, k2)
             if len(m) >= min_matches:
                 matches[(k1, k2)] = m
-    return ImportedFeatures([frame_names[i] for i in frame_idx], keypoints, matches, camera)
+    return ImportedFeatures([frame_names[i] for i in frame_idx], tracks.keypoints_px, matches,
+                            camera)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from app.pipeline.colmap import sfm
-from app.pipeline.colmap.klt_features import KltOptions, klt_correspondences, through_frames
+from app.pipeline.colmap.klt_features import KltOptions, klt_correspondences
 from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, Journey, PipelineError
@@ -52,12 +52,10 @@ class StageSfm:
 
     def __init__(self, stage: str, workdir: Path, journey: Journey, frame_idx: np.ndarray, *,
                  step: int, front_end: str, config: PipelineConfig, verbose: bool,
-                 feature_cache: Path | None = None, track_every_frame: bool = False):
+                 feature_cache: Path | None = None):
         self.stage, self.workdir, self.journey, self.step = stage, workdir, journey, step
         self.feature_cache = feature_cache  # SIFT shared with other stages (``sfm.SfmJob``)
         self.front_end, self.config, self.verbose = front_end, config, verbose
-        # KLT through the frames between the mapped ones (``klt_features.through_frames``).
-        self.track_every_frame = track_every_frame
         self.frame_idx = np.asarray(frame_idx, int)
         self._lock = threading.Lock()
         self._features: Correspondences | None = None
@@ -76,17 +74,14 @@ class StageSfm:
         if self.front_end == "sift":
             return Correspondences([f.path.name for f in frames])
         t0 = time.perf_counter()
-        tracked = (through_frames(self.frame_idx, self.step) if self.track_every_frame
-                   else self.frame_idx)
         imported = klt_correspondences(
-            self.frame_idx, read_ahead([self.journey.frames[i].path for i in tracked], self._gray),
+            self.frame_idx, read_ahead([f.path for f in frames], self._gray),
             [f.path.name for f in self.journey.frames], None, step=self.step,
             overlap=self.config.klt_pair_overlap,
-            options=KltOptions(max_corners=self.config.klt_max_corners),
-            tracked_idx=tracked if self.track_every_frame else None)
+            options=KltOptions(max_corners=self.config.klt_max_corners))
         tracked_s = time.perf_counter() - t0
-        log.info("KLT: %d frames tracked in %.1f s (%d mapped), %d tentative pairs", len(tracked),
-                 tracked_s, len(frames), len(imported.matches))
+        log.info("KLT: %d frames tracked in %.1f s, %d tentative pairs", len(frames), tracked_s,
+                 len(imported.matches))
         return Correspondences([], imported, tracked_s)
 
     def run(self, requests: list[sfm.WindowRequest], camera: CameraModel | None, *,

@@ -39,7 +39,6 @@ class JourneyPlan:
     ego_frames: np.ndarray
     ego_step: int = 1
     ego_front_end: str = "klt"
-    ego_track_every_frame: bool = False  # KLT through the frames between the mapped ones
     frame_spacing_m: float | None = None  # between consecutive frames at the cruise speed
     # Which of turns_and_candidates' looks found ``turns`` ("": the first).
     turns_look: str = ""
@@ -147,7 +146,8 @@ def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                        ego_windows=ego_windows, off_grid=off_grid,
                        ego_frames=ego_motion.mapped_frames(ego_windows, ego_step, off_grid),
                        ego_step=ego_step, frame_spacing_m=spacing_m,
-                       **ego_front_end(spacing_m, ego_step, config),
+                       ego_front_end=ego_front_end(spacing_m, ego_step, config.ego_front_end,
+                                                   config.ego_sift_min_spacing_m),
                        too_short=too_short)
 
 
@@ -222,19 +222,16 @@ def moving_spacing_m(xyz: np.ndarray, timestamp_s: np.ndarray, noise_m: float | 
     return float(max(np.percentile(moving, 75) - spread, 0.0) * frame_s)
 
 
-def ego_front_end(spacing_m: float | None, step: int, config: PipelineConfig) -> dict:
-    """The plan's ``ego_front_end`` and ``ego_track_every_frame``: the configured front end, but
-    where the mapped frames (every ``step``-th, consecutive ones ``spacing_m`` apart) lie more than
-    ``ego_sift_min_spacing_m`` apart, KLT through every frame (``ego_klt_every_frame``) when
-    consecutive frames lie closer, else SIFT. KLT follows each corner by a local search from where
-    it was in the previous frame it tracked; metres apart, near objects jump too far, windows
-    register a few frames and signs go unplaced, while SIFT matches across the gap."""
-    front_end, sift_min_m = config.ego_front_end, config.ego_sift_min_spacing_m
-    if front_end == "sift" or sift_min_m <= 0 or spacing_m is None or step * spacing_m <= sift_min_m:
-        return {"ego_front_end": front_end, "ego_track_every_frame": False}
-    if config.ego_klt_every_frame and spacing_m <= sift_min_m:
-        return {"ego_front_end": "klt", "ego_track_every_frame": True}
-    return {"ego_front_end": "sift", "ego_track_every_frame": False}
+def ego_front_end(spacing_m: float | None, step: int, front_end: str,
+                  sift_min_spacing_m: float) -> str:
+    """The ego-motion front end: ``front_end``, but SIFT where the mapped frames (every ``step``-th,
+    consecutive ones ``spacing_m`` apart) lie more than ``sift_min_spacing_m`` apart. KLT follows
+    each corner by a local search from where it was in the previous mapped frame; metres apart,
+    near objects jump too far, windows register a few frames and signs go unplaced, while SIFT
+    matches across the gap."""
+    if front_end == "sift" or sift_min_spacing_m <= 0 or spacing_m is None:
+        return front_end
+    return "sift" if step * spacing_m > sift_min_spacing_m else front_end
 
 
 def _turn_summary(turn: TurnWindow) -> str:
@@ -265,7 +262,6 @@ def report(plan: JourneyPlan, config: PipelineConfig) -> StageReport:
                f"{len(plan.tracks)} sign track pass(es), {len(plan.ego_windows)} ego-motion "
                f"window(s) mapping {len(plan.ego_frames)} frames (one in {plan.ego_step}, and "
                f"every frame of short tracks) with {plan.ego_front_end.upper()} correspondences"
-               + (" (tracked through every frame)" if plan.ego_track_every_frame else "")
                + (f", frames {plan.frame_spacing_m:.2f} m apart at the cruise speed"
                   if plan.frame_spacing_m is not None else "")]
     return StageReport("turns", summary, tuple(turns_found + planned))

@@ -243,21 +243,15 @@ def test_frame_spacing_is_the_moving_speed_and_a_turn_or_a_stop_does_not_shorten
     assert moving_spacing_m(np.zeros((50, 3)), t[:50]) is None
 
 
-def test_frames_mapped_metres_apart_get_klt_through_every_frame_and_sift_only_beyond():
-    from app.pipeline.config import PipelineConfig
+def test_frames_mapped_metres_apart_get_sift_and_close_ones_keep_klt():
     from app.pipeline.steps.plan import ego_front_end
 
-    def chosen(spacing_m, **knobs):
-        plan = ego_front_end(spacing_m, 2, PipelineConfig(**knobs))
-        return plan["ego_front_end"] + ("+every" if plan["ego_track_every_frame"] else "")
-
-    assert chosen(0.8) == "klt"  # the suite: 1.6 m between mapped frames
-    assert chosen(1.05) == "klt+every"  # a 10 Hz dashcam at 10.5 m/s: 2.1 m between mapped ones
-    assert chosen(3.6) == "sift"  # 5 Hz at 18 m/s: consecutive frames too far apart for KLT
-    assert chosen(1.05, ego_klt_every_frame=False) == "sift"
-    assert chosen(3.6, ego_sift_min_spacing_m=0.0) == "klt"  # 0: never
-    assert chosen(0.8, ego_front_end="sift") == "sift"  # asked for everywhere
-    assert chosen(None) == "klt"
+    assert ego_front_end(0.8, 2, "klt", 1.7) == "klt"  # the suite: 1.6 m between mapped frames
+    assert ego_front_end(3.6, 2, "klt", 1.7) == "sift"  # 5 Hz at 18 m/s
+    assert ego_front_end(0.9, 2, "klt", 1.7) == "sift"
+    assert ego_front_end(3.6, 2, "klt", 0.0) == "klt"  # 0: never
+    assert ego_front_end(0.8, 2, "sift", 1.7) == "sift"  # asked for everywhere
+    assert ego_front_end(None, 2, "klt", 1.7) == "klt"
 
 
 def test_more_initial_pairs_are_tried_with_half_the_gap_and_off_the_middle():

@@ -87,24 +87,6 @@ def test_mapped_frames_are_the_union_of_the_windows_steps():
     assert frames.tolist() == [0, 3, 6, 9, 12, 30]
 
 
-def test_tracks_followed_through_the_frames_between_pair_only_the_mapped_ones():
-    base = _texture()
-    frame_idx = np.array([0, 2, 4, 6, 20, 22])  # mapped: every 2nd, a gap 6 -> 20
-    tracked = klt_features.through_frames(frame_idx, step=2)
-    assert tracked.tolist() == [0, 1, 2, 3, 4, 5, 6, 20, 21, 22]
-    images = [_shifted(base, 4.0 * i, 0.0) for i in tracked]
-    names = [f"{i:06d}.png" for i in range(30)]
-    feats = klt_features.klt_correspondences(frame_idx, images, names, CAMERA, step=2, overlap=2,
-                                             tracked_idx=tracked)
-    assert feats.image_names == [names[i] for i in frame_idx]
-    assert len(feats.keypoints_px) == len(frame_idx)  # the frames between give no keypoints
-    assert sorted(feats.matches) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (4, 5)]
-    for (k1, k2), m in feats.matches.items():
-        moved = feats.keypoints_px[k2][m[:, 1]] - feats.keypoints_px[k1][m[:, 0]]
-        inside = feats.keypoints_px[k1][m[:, 0], 0] < 380
-        assert np.median(np.abs(moved[inside, 0] - 4.0 * (frame_idx[k2] - frame_idx[k1]))) < 0.05
-
-
 def test_frames_are_read_ahead_in_order_and_only_a_few_at_a_time():
     from app.pipeline.colmap.stage import read_ahead
 
