@@ -43,10 +43,9 @@ class _Clock:
     fraction of the journey's expected work done."""
 
     def __init__(self, progress: ProgressFn, weights: dict[str, float], *,
-                 timings_s: dict[str, float] | None = None, done: float = 0.0,
-                 parts_s: dict[str, dict[str, float]] | None = None):
+                 timings_s: dict[str, float] | None = None, done: float = 0.0):
         self.timings_s: dict[str, float] = timings_s if timings_s is not None else {}
-        self.parts_s: dict[str, dict[str, float]] = parts_s if parts_s is not None else {}
+        self.parts_s: dict[str, dict[str, float]] = {}
         self.windows: list[WindowTime] = []
         self.progress = progress
         self.weights = weights
@@ -74,9 +73,12 @@ class _Clock:
     def add_sfm(self, name: str, done: SfmRun, frames: list[str]) -> None:
         """Stage ``name``'s COLMAP run ``done`` (windows of the journey ``frames``, each a
         label like "12-125"): its parts add to what the stage already spent."""
-        mine = self.parts_s.setdefault(name, {})
+        parts = dict(done.timings_s)
         refine_s = sum(w.refine_s for w in done.windows)
-        for part, seconds in {**done.timings_s, **({"refine": refine_s} if refine_s else {})}.items():
+        if refine_s:
+            parts["refine"] = refine_s
+        mine = self.parts_s.setdefault(name, {})
+        for part, seconds in parts.items():
             mine[part] = round(mine.get(part, 0.0) + seconds, 3)
         self.windows += [WindowTime(name, label, w.n_input, len(w.image_names), w.mapping_s,
                                     w.refine_s) for label, w in zip(frames, done.windows)]

@@ -72,7 +72,6 @@ def run_summary(out: RunOutput, truth: dict, task: RunTask) -> dict:
     if out.result is not None:
         record["stage_parts_s"] = out.result.stage_parts_s
         record["windows"] = [dataclasses.asdict(w) for w in out.result.window_times]
-    if out.result is not None:
         record.update(evaluate_result(out.result, truth))
     return record
 
