@@ -91,7 +91,8 @@ def run_corpus_command(args) -> int:
                            config_overrides=dict(args.set or []), tag=args.tag,
                            resume=args.resume, keep_dir=args.keep_reconstructions,
                            replay_dir=args.replay, focal_scale=args.true_camera_focal_scale,
-                           stored_camera=args.stored_camera, as_video=args.as_video)
+                           stored_camera=args.stored_camera, as_video=args.as_video,
+                           antenna_undeclared=args.antenna_undeclared)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -366,6 +367,10 @@ def _add_corpus_parser(bench_sub) -> None:
                         "video.mp4 + gps.nmea, its clock off GPS time by a few whole seconds "
                         "drawn from the journey's name, undeclared): records the clock error "
                         "estimated against the true one")
+    c.add_argument("--antenna-undeclared", action="store_true",
+                   help="leave each bundle's gps_antenna_offset_m out of its manifest (a corpus "
+                        "rendered with --antenna-offsets): the pipeline must estimate the offset, "
+                        "and the records compare its estimate with the true one")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")

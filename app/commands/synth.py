@@ -59,6 +59,9 @@ def add_parsers(sub) -> None:
     c.add_argument("--frame-spacing-m", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="with --n: only journeys whose consecutive frames lie LO-HI m apart at "
                    "the cruise speed, --n / 2 per half")
+    c.add_argument("--antenna-offsets", action="store_true",
+                   help="with --n: each journey's GPS antenna up to 1.5 m from its camera (the "
+                   "fixes are the antenna's), the offset declared in its manifest")
     p.set_defaults(func=run_synth)
 
 
@@ -88,10 +91,15 @@ def run_corpus(args) -> int:
 
     t0 = time.perf_counter()
     write = write_corpus if args.n is not None else write_fleet
-    spacing = ({"frame_spacing_m": tuple(args.frame_spacing_m)}
+    options = ({"frame_spacing_m": tuple(args.frame_spacing_m)}
                if args.n is not None and args.frame_spacing_m else {})
+    if args.antenna_offsets:
+        if args.n is None:
+            print("signmap synth corpus: --antenna-offsets goes with --n", file=sys.stderr)
+            return 2
+        options["antenna_offsets"] = True
     path = write(args.n if args.n is not None else args.cameras, args.seed, Path(args.out),
-                 workers=args.workers, max_frames=args.max_frames or MAX_FRAMES, **spacing)
+                 workers=args.workers, max_frames=args.max_frames or MAX_FRAMES, **options)
     n = len(json.loads(path.read_text())["journeys"])
     print(path)
     print(f"{n} journeys in {time.perf_counter() - t0:.1f} s", file=sys.stderr)

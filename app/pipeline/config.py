@@ -180,6 +180,11 @@ class PipelineConfig(BaseModel):
     # A broken window bends its neighbours (docs/decisions/alignment-unlink-broken.md).
     alignment_unlink_broken: bool = Field(
         True, description="a window over max_alignment_rms_gps_ratio is aligned on its own")
+    # An antenna offset nobody declared is estimated from the windows that turn
+    # (docs/decisions/antenna-offset.md); applied only when it is this sure.
+    antenna_offset_max_sigma_m: float = Field(
+        0.2, description="an estimated GPS antenna offset is applied when its 1-sigma (m) is "
+        "below this (0: never applied, still reported)")
 
     # Triangulation.
     min_track_frames: int = 3

@@ -13,7 +13,7 @@ import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -22,12 +22,13 @@ import numpy as np
 from app.pipeline.colmap.sfm import SfmRun, WindowRequest, WindowResult
 from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry import geodesy, gps_track
+from app.pipeline.geometry import antenna, geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
-from app.pipeline.types import (Calibration, CameraModel, Journey, JourneyResult, PipelineError,
-                                ProgressFn, RejectedSign, StageReport, WindowTime, no_progress)
+from app.pipeline.types import (AntennaOffset, Calibration, CameraModel, Journey, JourneyResult,
+                                PipelineError, ProgressFn, RejectedSign, StageReport, WindowTime,
+                                no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -199,11 +200,18 @@ def reconstruct(journey: Journey, config: PipelineConfig, workdir: Path, *,
 def _at_camera(journey: Journey, xyz_gps: np.ndarray,
                xyz_align: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """``xyz_gps`` and ``xyz_align`` moved from the GPS antenna to the camera by the manifest's
-    ``gps_antenna_offset_m`` (``gps_track.antenna_to_camera``; the direction of travel taken from
-    ``xyz_align``), and what the align stage's report says of it; unchanged without one."""
+    ``gps_antenna_offset_m`` (``_moved``), and what the align stage's report says of it;
+    unchanged without one."""
     offset = journey.gps_antenna_offset
     if offset is None:
         return xyz_gps, xyz_align, ()
+    return _moved(journey, offset, xyz_gps, xyz_align)
+
+
+def _moved(journey: Journey, offset: AntennaOffset, xyz_gps: np.ndarray, xyz_align: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """``xyz_gps`` and ``xyz_align`` minus ``offset`` (``gps_track.antenna_to_camera``; the
+    direction of travel taken from ``xyz_align``), and the align report's line on it."""
     t_s = np.array([f.timestamp_s for f in journey.frames])
     forward = gps_track.camera_travel_direction(t_s, xyz_align, offset)
     moved_align = gps_track.antenna_to_camera(xyz_align, offset, forward)
@@ -215,6 +223,41 @@ def _at_camera(journey: Journey, xyz_gps: np.ndarray,
         note += (f"; the vehicle never moved faster than {gps_track.MIN_HEADING_SPEED_MPS:g} m/s, "
                  "so only the up part was applied")
     return moved_gps, moved_align, (note,)
+
+
+def _estimated_offset(journey: Journey, recon: Reconstruction,
+                      config: PipelineConfig) -> Reconstruction:
+    """``recon`` with its positions moved to the camera by the antenna offset its turning windows
+    tell (``geometry.antenna``) when nobody declared one and the estimate's sigma is below
+    ``antenna_offset_max_sigma_m``; the align report says what was estimated either way."""
+    if journey.gps_antenna_offset is not None or not recon.poses:
+        return recon
+    t_s = np.array([f.timestamp_s for f in journey.frames])
+    fixes = journey.gps_fixes
+    if fixes is None:  # one fix per frame (EXIF): the frames' positions are the fixes
+        t_fix_s, xyz_fix = t_s, recon.xyz_gps
+    else:
+        t_fix_s = fixes.timestamp_s
+        xyz_fix = recon.origin.to_local(fixes.lat_deg, fixes.lon_deg,
+                                        fixes.alt_m if journey.has_altitude else None)
+    est = antenna.estimate_offset([(t_s[p.frame_idx], p.T_model_cam[:, :3, 3])
+                                   for p in recon.poses], t_fix_s, xyz_fix)
+    if est is None:
+        note = (f"GPS antenna offset not declared, nor estimated: no reconstructed window turns "
+                f"{antenna.MIN_TURN_DEG:g}° or more")
+        return replace(recon, gps_notes=recon.gps_notes + (note,))
+    apply = est.sigma_m < config.antenna_offset_max_sigma_m
+    note = (f"GPS antenna offset estimated: forward {est.forward_m:+.2f} ± "
+            f"{est.sigma_forward_m:.2f} m, left {est.left_m:+.2f} ± {est.sigma_left_m:.2f} m "
+            f"({est.n_windows} window(s), {est.n_fixes} fixes, turning up to "
+            f"{est.turn_deg:.0f}°); "
+            + ("applied" if apply else f"not applied (sigma over "
+               f"{config.antenna_offset_max_sigma_m:g} m)"))
+    if not apply:
+        return replace(recon, gps_notes=recon.gps_notes + (note,))
+    xyz_gps, xyz_align, _ = _moved(journey, est.offset(), recon.xyz_gps, recon.xyz_align)
+    return replace(recon, xyz_gps=xyz_gps, xyz_align=xyz_align,
+                   gps_notes=recon.gps_notes + (note,))
 
 
 @dataclass(frozen=True)
@@ -368,6 +411,8 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
         # A window that cannot be aligned (the car stood still through it) is dropped.
         dropped: list[str] = []
         trusted = gps_trusted(journey, config)
+        recon = _estimated_offset(journey, recon, config)
+        xyz_gps, xyz_align = recon.xyz_gps, recon.xyz_align
         untrusted = ([] if trusted is None or trusted.all() else
                      [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
                       "positions neither align nor judge a window"])

@@ -10,6 +10,7 @@ import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 from app.synth.bundle import GENERATOR_VERSION
@@ -41,10 +42,12 @@ def _cached(jdir: Path, params: dict) -> bool:
             and truth.get("corpus", {}).get("params") == _jsonable(params))
 
 
-def write_journey_dir(seed: int, out: Path, max_frames: int = MAX_FRAMES) -> dict:
-    """Draw and (unless cached) render journey ``seed``; returns its corpus.json entry plus
-    ``seconds`` and ``cached``."""
-    return _write_drawn(journey_name(seed), seed, *draw_journey(seed, max_frames), out)
+def write_journey_dir(seed: int, out: Path, max_frames: int = MAX_FRAMES, *,
+                      antenna_offset: bool = False) -> dict:
+    """Draw and (unless cached) render journey ``seed`` (``draw_journey``); returns its
+    corpus.json entry plus ``seconds`` and ``cached``."""
+    return _write_drawn(journey_name(seed), seed,
+                        *draw_journey(seed, max_frames, antenna_offset=antenna_offset), out)
 
 
 def write_fleet_journey(key: tuple[int, int], out: Path, max_frames: int = MAX_FRAMES) -> dict:
@@ -79,19 +82,28 @@ def _log_line(e: dict) -> str:
             f"turn {p['max_turn_deg']:.0f}° "
             f"{p['n_frames']} fr @{p['fps']:g} Hz {p['speed_mps']:.1f} m/s "
             f"{p['width']}x{p['height']} hfov {p['hfov_deg']:.0f}° k1 {p['k1']:+.2f} "
-            f"{p['scene']} gps {rate} {p['gps_white_sigma_m']:.1f} m: {what}")
+            f"{p['scene']} gps {rate} {p['gps_white_sigma_m']:.1f} m{_antenna(p)}: {what}")
+
+
+def _antenna(params: dict) -> str:
+    offset = params.get("gps_antenna_offset_m")
+    return "" if offset is None else " antenna {:+.2f} {:+.2f} {:+.2f} m".format(*offset)
 
 
 def write_corpus(n: int, seed: int, out: Path, *, workers: int = 1,
                  max_frames: int = MAX_FRAMES,
-                 frame_spacing_m: tuple[float, float] | None = None) -> Path:
+                 frame_spacing_m: tuple[float, float] | None = None,
+                 antenna_offsets: bool = False) -> Path:
     """Journeys of seeds ``seed .. seed + n - 1`` into ``out`` (with ``frame_spacing_m``, those of
-    ``spacing_seeds``); returns ``out/corpus.json``."""
+    ``spacing_seeds``; with ``antenna_offsets``, each GPS antenna away from its camera and the
+    offset declared); returns ``out/corpus.json``."""
     seeds = (list(range(seed, seed + n)) if frame_spacing_m is None
              else spacing_seeds(n, seed, max_frames, frame_spacing_m))
-    return _write_index(seeds, write_journey_dir, out, workers, max_frames,
-                        {"seed": seed, "n": n} | ({"frame_spacing_m": list(frame_spacing_m)}
-                                                  if frame_spacing_m else {}))
+    write = partial(write_journey_dir, antenna_offset=antenna_offsets)
+    return _write_index(seeds, write, out, workers, max_frames,
+                        {"seed": seed, "n": n}
+                        | ({"frame_spacing_m": list(frame_spacing_m)} if frame_spacing_m else {})
+                        | ({"antenna_offsets": True} if antenna_offsets else {}))
 
 
 def spacing_seeds(n: int, seed: int, max_frames: int, frame_spacing_m: tuple[float, float]

@@ -33,6 +33,7 @@ GEOREF_KNOBS = frozenset({
     "max_reprojection_rms_px", "min_inlier_share", "max_sign_std_m", "min_ray_angle_deg",
     "max_alignment_rms_gps_ratio", "min_alignment_rms_reject_m", "merge_fragments_within_m",
     "sign_georef_floor_m", "sign_georef_noise_gain", "sign_georef_bias_quad_per_m",
+    "antenna_offset_max_sigma_m",
 })
 
 

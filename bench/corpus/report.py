@@ -19,6 +19,8 @@ from typing import Callable, Iterable
 import numpy as np
 from scipy.stats import bootstrap
 
+from bench.corpus.antenna import antenna_summary, table_antenna
+from bench.corpus.by_range import range_summary, table_range
 from bench.paper.metrics import true_distortion_error_px
 from bench.paper.plots import save_figure, plt
 from bench.paper.runner import finite
@@ -391,7 +393,8 @@ def build_report(meta: dict, records: list[dict]) -> dict:
     by_half = {h: [r for r in records if r.get("half") == h] for h in HALVES}
     return {"meta": meta, "summary": {h: half_summary(rs) for h, rs in by_half.items()},
             "failures": group_failures(records), "params": param_comparison(records),
-            "clock": clock_summary(records), "journeys": records}
+            "clock": clock_summary(records), "by_range": range_summary(records),
+            "antenna": antenna_summary(records), "journeys": records}
 
 
 def _rate(rate: dict) -> str:
@@ -551,6 +554,14 @@ def table_journeys(report: dict) -> str:
     return "### Journeys\n\n" + md_table(header, rows)
 
 
+def _table_range(report: dict) -> str:
+    return table_range(report["by_range"]) if "by_range" in report else ""
+
+
+def _table_antenna(report: dict) -> str:
+    return table_antenna(report.get("antenna"))
+
+
 def render_markdown(report: dict) -> str:
     m = report["meta"]
     head = (f"# Signmap corpus bench {m.get('date')}{' ' + m['tag'] if m.get('tag') else ''}\n\n"
@@ -560,10 +571,11 @@ def render_markdown(report: dict) -> str:
             f"{m.get('cpus')} CPUs, pycolmap {m.get('pycolmap')}; "
             f"{'calibration only; ' if m.get('calibrate_only') else ''}"
             f"{'as dash cam video bundles; ' if m.get('as_video') else ''}"
+            f"{'antenna offsets undeclared; ' if m.get('antenna_undeclared') else ''}"
             f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
             f"this run {fmt(m.get('wall_s'), 0)} s. {BAR_TEXT}\n\n")
-    tables = (table_summary, table_sigma, table_failures, table_clock, table_params,
-              table_journeys)
+    tables = (table_summary, _table_range, _table_antenna, table_sigma, table_failures,
+              table_clock, table_params, table_journeys)
     return head + "\n\n".join(text for t in tables if (text := t(report))) + "\n"
 
 

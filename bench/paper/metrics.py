@@ -116,6 +116,10 @@ def sign_errors(result: JourneyResult, truth: dict) -> dict[str, dict[str, float
                                              else bool(h_err_m <= sign.r95_h_m)),
                               # Distance along the journey where it was seen (error vs distance).
                               "s_m": float(np.mean(s_m)) if s_m else float("nan"),
+                              # Per observation (true range, camera-frame error), metres: the
+                              # relative error against range.
+                              "obs_range_err_m": [[round(float(r), 3), round(float(e), 4)]
+                                                  for r, e in zip(range_m, rel)],
                               **_uncertainty_parts(sign)}
     return out
 

@@ -289,3 +289,20 @@ def test_a_spacing_corpus_takes_the_journeys_of_that_spacing_half_from_each_half
         params = draw_journey(seed, 200)[1]
         assert 0.9 < params["speed_mps"] / params["fps"] <= 1.65
         assert params["half"] == ("tuning" if seed % 2 == 0 else "check")
+
+
+def test_an_antenna_offset_corpus_draws_the_same_journeys_with_their_antennas_moved(tmp_path):
+    for seed in range(40):
+        plain_cfg, plain = draw_journey(seed, 200)
+        cfg, params = draw_journey(seed, 200, antenna_offset=True)
+        offset = params.pop("gps_antenna_offset_m")
+        assert params == plain and cfg.replace(gps_antenna_offset_m=(0.0, 0.0, 0.0)) == plain_cfg
+        assert 0.0 < math.hypot(*offset) <= 1.5 + 1e-3 and tuple(offset) == cfg.gps_antenna_offset_m
+    index = json.loads(write_corpus(1, TINY_SEED, tmp_path, max_frames=6,
+                                    antenna_offsets=True).read_text())
+    assert index["antenna_offsets"] is True
+    [entry] = index["journeys"]
+    manifest = json.loads(zipfile.ZipFile(tmp_path / entry["dir"] / "bundle.zip")
+                          .read("manifest.json"))
+    declared = manifest["gps_antenna_offset_m"]
+    assert [declared[k] for k in ("forward", "left", "up")] == entry["params"]["gps_antenna_offset_m"]

@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from app.pipeline.colmap.sfm import WindowResult
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry.path_scale import scale_spread
+from app.pipeline.geometry.similarity import scale_spread
 from app.pipeline.steps.turns import TurnWindow
 from app.pipeline.types import Calibration, CameraModel, NoTurnError, PipelineError
 
@@ -271,7 +271,7 @@ def _turns_beyond_gps(window: CalibrationWindow, rotation: float,
 
 def _path_scale_spread(window: CalibrationWindow, res: WindowResult,
                        frame_names: Sequence[str] | None) -> float:
-    """``path_scale.scale_spread`` of the registered cameras against the window's GPS (NaN where
+    """``similarity.scale_spread`` of the registered cameras against the window's GPS (NaN where
     either is missing). Reported, not judged: as a gate at 3 it changed one tuning journey of 53
     (c0838, fx +1.87 -> +0.33 %) and no other (docs/decisions/calib-path-scale.md)."""
     if window.gps_xyz_m is None or frame_names is None or res.error:

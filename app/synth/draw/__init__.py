@@ -22,6 +22,8 @@ APPROACH_M = (30.0, 40.0)  # straight road before the first and after the last t
 STOP_DECEL_MPS2 = 2.0
 MIN_FIXES = 3
 TURN_BREAK_M = 2.0  # two turns with a straight longer than this between them are two turns
+ANTENNA_MAX_M = 1.5
+ANTENNA_STREAM = 0xA7  # the antenna offset's random stream, apart from the journey's own
 
 
 def rotation_covered(T_world_cam: np.ndarray) -> tuple[float, float]:
@@ -114,8 +116,24 @@ def _fit_gps(cfg: SynthConfig) -> SynthConfig:
     return cfg.replace(gps_rate_hz=None, gps_phase_s=None, gps_dropouts=())
 
 
-def draw_journey(seed: int, max_frames: int = MAX_FRAMES) -> tuple[SynthConfig, dict]:
-    """The config of corpus journey ``seed`` and the flat, JSON-able dict of what was drawn."""
+def draw_antenna_offset(seed: int) -> tuple[float, float, float]:
+    """Where journey ``seed``'s GPS antenna sits from its camera (forward, left, up; metres), up
+    to ANTENNA_MAX_M away: mostly behind and off to a side (a roof antenna or a receiver in the
+    dashboard behind a windscreen camera; KITTI's is 1.09 m behind, 0.25 m left, 0.72 m below).
+    From its own generator, so a corpus drawn with offsets has the same journeys otherwise."""
+    rng = np.random.default_rng((seed, ANTENNA_STREAM))
+    offset = np.array([rng.uniform(-1.5, 0.3), rng.uniform(-0.4, 0.4), rng.uniform(-0.8, 0.6)])
+    norm = float(np.linalg.norm(offset))
+    if norm > ANTENNA_MAX_M:
+        offset *= ANTENNA_MAX_M / norm
+    return tuple(round(float(v), 3) for v in offset)
+
+
+def draw_journey(seed: int, max_frames: int = MAX_FRAMES, *, antenna_offset: bool = False
+                 ) -> tuple[SynthConfig, dict]:
+    """The config of corpus journey ``seed`` and the flat, JSON-able dict of what was drawn;
+    ``antenna_offset``: its GPS antenna away from its camera (``draw_antenna_offset``), declared
+    in its manifest."""
     rng = np.random.default_rng(seed)
     params: dict = {"seed": seed, "half": "tuning" if seed % 2 == 0 else "check"}
     fps = float(rng.choice([5.0, 10.0, 12.0, 15.0, 20.0, 25.0, 30.0]))
@@ -160,4 +178,7 @@ def draw_journey(seed: int, max_frames: int = MAX_FRAMES) -> tuple[SynthConfig, 
         "gps_dropouts": ";".join(f"{a}+{b}" for a, b in cfg.gps_dropouts),
         "gps_rate_hz": cfg.gps_rate_hz, "gps_phase_s": cfg.gps_phase_s,
         "covered_rotation_deg": round(covered, 2), "max_turn_deg": round(biggest, 2)})
+    if antenna_offset:
+        cfg = cfg.replace(gps_antenna_offset_m=draw_antenna_offset(seed))
+        params["gps_antenna_offset_m"] = list(cfg.gps_antenna_offset_m)
     return cfg, params

@@ -1,9 +1,9 @@
-"""Does one scale fit a reconstruction's camera path against GPS (``geometry.path_scale``)?"""
+"""Does one scale fit a reconstruction's camera path against GPS (``geometry.similarity.scale_spread``)?"""
 
 import numpy as np
 import pytest
 
-from app.pipeline.geometry.path_scale import scale_spread
+from app.pipeline.geometry.similarity import scale_spread
 
 
 def _turn_m(n: int = 22) -> np.ndarray:
