@@ -38,6 +38,7 @@ MAX_RESIDUAL_M = 1.5
 # The camera's direction of travel at a fix: its reconstructed path's chord over this many seconds
 # either side (frames are dense; the path is smooth where the GPS is not).
 VELOCITY_HALF_S = 0.25
+MIN_SPEED_MPS = 1.0  # slower (at the start's scale), a fix is left out
 # A window sharing more than this share of its fixes with a better window is not counted again.
 MAX_SHARED_FIXES = 0.2
 
@@ -124,10 +125,15 @@ def _fit_window(t_s: np.ndarray, centres: np.ndarray, t_fix_s: np.ndarray, xyz_f
     # Kabsch for the start (COLMAP's Umeyama refuses a flat road's planar centres).
     src_c, dst_c = c_fix - c_fix.mean(0), xyz_fix - xyz_fix.mean(0)
     spread = float(np.linalg.norm(src_c))
-    if spread == 0.0 or np.any(np.linalg.norm(v_fix, axis=1) == 0.0):
+    if spread == 0.0:
         return None
     R = Rotation.align_vectors(dst_c, src_c)[0]
     scale = float(np.linalg.norm(dst_c)) / spread
+    # Standing, the path has no direction for the offset to follow (and a stop's fixes wander).
+    moving = scale * np.linalg.norm(v_fix, axis=1) >= MIN_SPEED_MPS * 2.0 * VELOCITY_HALF_S
+    if moving.sum() < MIN_FIXES:
+        return None
+    c_fix, v_fix, xyz_fix = c_fix[moving], v_fix[moving], xyz_fix[moving]
     x0 = np.concatenate([R.as_rotvec(), [np.log(scale)],
                          xyz_fix.mean(0) - scale * R.apply(c_fix.mean(0)), [0.0, 0.0]])
     fit = least_squares(_residuals, x0, args=(c_fix, v_fix, xyz_fix), method="lm")

@@ -101,3 +101,16 @@ def test_correlated_gps_errors_widen_the_sigma():
 ])
 def test_correlation_time_counts_samples_that_repeat(residual, expected):
     assert expected[0] < correlation_time(residual) < expected[1]
+
+
+def test_a_stop_before_the_turn_does_not_spoil_it():
+    """Standing, the path points nowhere: those fixes are left out, not fitted."""
+    t_s, camera = _drive(90.0)
+    stand = 30  # 3 s standing at the start
+    camera = np.concatenate([np.repeat(camera[:1], stand, axis=0), camera])
+    t_s = np.arange(len(camera)) / 10.0
+    fixes = _antenna(t_s, camera, np.random.default_rng(5))
+    R = Rotation.random(random_state=5).as_matrix()
+    est = estimate_offset([(t_s[:150], camera[:150] @ R)], t_s[::2], fixes[::2])
+    assert est is not None
+    assert abs(est.forward_m - FORWARD_M) < 0.3 and abs(est.left_m - LEFT_M) < 0.3, est
