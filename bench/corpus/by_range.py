@@ -4,6 +4,8 @@ errors in the rotations and the focal length grow with range; a flat table says 
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from bench.paper.tables import fmt, md_table
@@ -14,13 +16,10 @@ RANGE_EDGES_M = (0.0, 5.0, 10.0, 20.0, 30.0, 40.0, float("inf"))
 FLAT_FROM_M, FLAT_TO_M = 5.0, 40.0
 
 
-def observations(records: list[dict], gps_kind: str | None = None) -> np.ndarray:
+def observations(records: list[dict]) -> np.ndarray:
     """(K, 2) [true range m, camera-frame error m] of every placed sign's observations in
-    ``records`` (of one GPS kind: ``report.gps_kind``), in record order."""
-    from bench.corpus.report import gps_kind as kind_of
-
-    rows = [pair for r in records if gps_kind is None or kind_of(r) == gps_kind
-            for e in (r.get("sign_errors") or {}).values()
+    ``records``, in record order."""
+    rows = [pair for r in records for e in (r.get("sign_errors") or {}).values()
             for pair in e.get("obs_range_err_m", [])]
     return np.asarray(rows, float).reshape(-1, 2)
 
@@ -45,13 +44,15 @@ def spread_m(bins: list[dict]) -> float | None:
     return max(means) - min(means) if len(means) >= 2 else None
 
 
-def range_summary(records: list[dict]) -> dict:
-    """Per half and GPS kind ("oxts", "all"): the bins and their spread."""
+def range_summary(records: list[dict], gps_kind: Callable[[dict], str]) -> dict:
+    """Per half, of the journeys with OXTS-like GPS (``gps_kind`` of a record "oxts") and of all:
+    the bins and their spread."""
     out: dict = {}
     for half in HALVES:
         mine = [r for r in records if r.get("half") == half]
         for kind in ("oxts", "all"):
-            bins = range_bins(observations(mine, None if kind == "all" else kind))
+            bins = range_bins(observations([r for r in mine
+                                            if kind == "all" or gps_kind(r) == kind]))
             out.setdefault(half, {})[kind] = {"bins": bins, "spread_m": spread_m(bins)}
     return out
 

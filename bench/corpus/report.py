@@ -393,7 +393,7 @@ def build_report(meta: dict, records: list[dict]) -> dict:
     by_half = {h: [r for r in records if r.get("half") == h] for h in HALVES}
     return {"meta": meta, "summary": {h: half_summary(rs) for h, rs in by_half.items()},
             "failures": group_failures(records), "params": param_comparison(records),
-            "clock": clock_summary(records), "by_range": range_summary(records),
+            "clock": clock_summary(records), "by_range": range_summary(records, gps_kind),
             "antenna": antenna_summary(records), "journeys": records}
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from app.synth.journey import SynthConfig, write_bundle
 from bench.corpus import antenna, by_range
-from bench.corpus.report import build_report, render_markdown
+from bench.corpus.report import build_report, gps_kind, render_markdown
 from bench.corpus.run import read_jsonl, run_corpus
 
 KITTI_OFFSET = (-1.09, 0.25, -0.72)
@@ -29,7 +29,7 @@ def test_errors_are_binned_by_range_and_the_spread_spans_5_to_40_m():
     records = [_placed("tuning", [[3.0, 0.05], [7.0, 0.1], [8.0, 0.2], [25.0, 0.3], [35.0, 0.2]]),
                _placed("tuning", [[36.0, 0.9]], white_m=2.0),  # phone-like: not in the table
                _placed("check", [[12.0, 0.1]])]
-    summary = by_range.range_summary(records)
+    summary = by_range.range_summary(records, gps_kind)
     bins = {b["lo_m"]: b for b in summary["tuning"]["oxts"]["bins"]}
     assert bins[5.0]["n"] == 2 and bins[5.0]["mean_m"] == pytest.approx(0.15)
     assert bins[30.0]["n"] == 1 and bins[40.0]["n"] == 0 and bins[40.0]["mean_m"] is None
@@ -42,7 +42,7 @@ def test_errors_are_binned_by_range_and_the_spread_spans_5_to_40_m():
 
 
 def test_records_without_ranges_say_so():
-    text = by_range.table_range(by_range.range_summary([_placed("tuning", [])]))
+    text = by_range.table_range(by_range.range_summary([_placed("tuning", [])], gps_kind))
     assert "No observation with its range" in text
 
 
