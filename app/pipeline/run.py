@@ -26,9 +26,9 @@ from app.pipeline.geometry import antenna, geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
-from app.pipeline.types import (AntennaOffset, Calibration, CameraModel, Journey, JourneyResult,
-                                PipelineError, ProgressFn, RejectedSign, StageReport, WindowTime,
-                                no_progress)
+from app.pipeline.types import (AntennaEstimate, AntennaOffset, Calibration, CameraModel,
+                                Journey, JourneyResult, PipelineError, ProgressFn, RejectedSign,
+                                StageReport, WindowTime, no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -225,13 +225,15 @@ def _moved(journey: Journey, offset: AntennaOffset, xyz_gps: np.ndarray, xyz_ali
     return moved_gps, moved_align, (note,)
 
 
-def _estimated_offset(journey: Journey, recon: Reconstruction,
-                      config: PipelineConfig) -> Reconstruction:
+def _estimated_offset(journey: Journey, recon: Reconstruction, config: PipelineConfig
+                      ) -> tuple[Reconstruction, AntennaEstimate | None]:
     """``recon`` with its positions moved to the camera by the antenna offset its turning windows
-    tell (``geometry.antenna``) when nobody declared one and the estimate's sigma is below
-    ``antenna_offset_max_sigma_m``; the align report says what was estimated either way."""
+    tell (``geometry.antenna``), combined with the vehicle's earlier journeys'
+    (``journey.antenna_prior``), when nobody declared one and the sigma is below
+    ``antenna_offset_max_sigma_m``; and this journey's own estimate. The align report says what
+    was estimated either way."""
     if journey.gps_antenna_offset is not None or not recon.poses:
-        return recon
+        return recon, None
     t_s = np.array([f.timestamp_s for f in journey.frames])
     fixes = journey.gps_fixes
     if fixes is None:  # one fix per frame (EXIF): the frames' positions are the fixes
@@ -240,24 +242,40 @@ def _estimated_offset(journey: Journey, recon: Reconstruction,
         t_fix_s = fixes.timestamp_s
         xyz_fix = recon.origin.to_local(fixes.lat_deg, fixes.lon_deg,
                                         fixes.alt_m if journey.has_altitude else None)
-    est = antenna.estimate_offset([(t_s[p.frame_idx], p.T_model_cam[:, :3, 3])
-                                   for p in recon.poses], t_fix_s, xyz_fix)
-    if est is None:
+    found = antenna.estimate_offset([(t_s[p.frame_idx], p.T_model_cam[:, :3, 3])
+                                     for p in recon.poses], t_fix_s, xyz_fix)
+    own = found.estimate() if found is not None else None
+    prior = journey.antenna_prior
+    use = AntennaEstimate.combined([e for e in (own, prior) if e is not None])
+    if use is None:
         note = (f"GPS antenna offset not declared, nor estimated: no reconstructed window turns "
                 f"{antenna.MIN_TURN_DEG:g}° or more")
-        return replace(recon, gps_notes=recon.gps_notes + (note,))
-    apply = est.sigma_m < config.antenna_offset_max_sigma_m
-    note = (f"GPS antenna offset estimated: forward {est.forward_m:+.2f} ± "
-            f"{est.sigma_forward_m:.2f} m, left {est.left_m:+.2f} ± {est.sigma_left_m:.2f} m "
-            f"({est.n_windows} window(s), {est.n_fixes} fixes, turning up to "
-            f"{est.turn_deg:.0f}°); "
-            + ("applied" if apply else f"not applied (sigma over "
-               f"{config.antenna_offset_max_sigma_m:g} m)"))
+        return replace(recon, gps_notes=recon.gps_notes + (note,)), None
+    apply = use.sigma_m < config.antenna_offset_max_sigma_m
+    decision = ("applied" if apply else
+                f"not applied (sigma over {config.antenna_offset_max_sigma_m:g} m)")
+    where = journey.antenna_prior_source or "the vehicle"
+    if found is None:
+        note = (f"GPS antenna offset not estimated here (no window turns "
+                f"{antenna.MIN_TURN_DEG:g}° or more); {where}'s {prior.n_journeys} earlier "
+                f"journey(s) tell {_offset_text(prior)}: {decision}")
+    else:
+        note = (f"GPS antenna offset estimated: {_offset_text(own)} ({found.n_windows} "
+                f"window(s), {found.n_fixes} fixes, turning up to {found.turn_deg:.0f}°); "
+                + (decision if prior is None else
+                   f"{decision} with {where}'s {prior.n_journeys} earlier journey(s) "
+                   f"({_offset_text(prior)}; together {_offset_text(use)})"))
+    recon = replace(recon, gps_notes=recon.gps_notes + (note,))
     if not apply:
-        return replace(recon, gps_notes=recon.gps_notes + (note,))
-    xyz_gps, xyz_align, _ = _moved(journey, est.offset(), recon.xyz_gps, recon.xyz_align)
-    return replace(recon, xyz_gps=xyz_gps, xyz_align=xyz_align,
-                   gps_notes=recon.gps_notes + (note,))
+        return recon, own
+    source = "estimated" if prior is None else f"estimated with {where}'s journeys"
+    xyz_gps, xyz_align, _ = _moved(journey, use.offset(source), recon.xyz_gps, recon.xyz_align)
+    return replace(recon, xyz_gps=xyz_gps, xyz_align=xyz_align), own
+
+
+def _offset_text(est: AntennaEstimate) -> str:
+    return (f"forward {est.forward_m:+.2f} ± {est.sigma_forward_m:.2f} m, left "
+            f"{est.left_m:+.2f} ± {est.sigma_left_m:.2f} m")
 
 
 @dataclass(frozen=True)
@@ -411,7 +429,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
         # A window that cannot be aligned (the car stood still through it) is dropped.
         dropped: list[str] = []
         trusted = gps_trusted(journey, config)
-        recon = _estimated_offset(journey, recon, config)
+        recon, antenna_estimate = _estimated_offset(journey, recon, config)
         xyz_gps, xyz_align = recon.xyz_gps, recon.xyz_align
         untrusted = ([] if trusted is None or trusted.all() else
                      [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
@@ -447,7 +465,8 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                          trajectory_T_world_cam=traj_T,
                          origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports,
                          stage_parts_s=dict(recon.stage_parts_s),
-                         window_times=list(recon.window_times))
+                         window_times=list(recon.window_times),
+                         antenna_estimate=antenna_estimate)
 
 
 def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarray,

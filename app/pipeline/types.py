@@ -113,6 +113,51 @@ class AntennaOffset:
     source: str = "manifest"
 
 
+@dataclass(frozen=True)
+class AntennaEstimate:
+    """A horizontal GPS antenna offset that turns told (``geometry.antenna``) where nobody declared
+    one: forward and left (m, vehicle axes, as ``AntennaOffset``) and their 1-sigma (m), from
+    ``n_journeys`` journeys (``combined``)."""
+
+    forward_m: float
+    left_m: float
+    sigma_forward_m: float
+    sigma_left_m: float
+    n_journeys: int = 1
+
+    @property
+    def sigma_m(self) -> float:
+        return max(self.sigma_forward_m, self.sigma_left_m)
+
+    def offset(self, source: str) -> AntennaOffset:
+        return AntennaOffset(self.forward_m, self.left_m, 0.0, source)
+
+    def to_json(self) -> dict:
+        return {"forward_m": self.forward_m, "left_m": self.left_m,
+                "sigma_forward_m": self.sigma_forward_m, "sigma_left_m": self.sigma_left_m,
+                "n_journeys": self.n_journeys}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "AntennaEstimate":
+        return cls(float(data["forward_m"]), float(data["left_m"]),
+                   float(data["sigma_forward_m"]), float(data["sigma_left_m"]),
+                   int(data.get("n_journeys", 1)))
+
+    @classmethod
+    def combined(cls, estimates: "list[AntennaEstimate]") -> "AntennaEstimate | None":
+        """Per axis, the inverse-variance mean of ``estimates`` and its sigma: journeys driven at
+        other times share no GPS error, so their estimates are independent; None for none."""
+        if not estimates:
+            return None
+        axes = []
+        for value, sigma in (("forward_m", "sigma_forward_m"), ("left_m", "sigma_left_m")):
+            weights = [1.0 / getattr(e, sigma) ** 2 for e in estimates]
+            axes.append((sum(w * getattr(e, value) for w, e in zip(weights, estimates))
+                         / sum(weights), sum(weights) ** -0.5))
+        return cls(axes[0][0], axes[1][0], axes[0][1], axes[1][1],
+                   sum(e.n_journeys for e in estimates))
+
+
 @dataclass
 class Journey:
     """A validated journey bundle, ready for the pipeline.
@@ -148,6 +193,10 @@ class Journey:
     # The GPS antenna's position minus the camera's in vehicle axes (forward, left, up), as the
     # manifest declares it; None: the GPS position is the camera's.
     gps_antenna_offset: AntennaOffset | None = None
+    # Without a declared offset: what the same vehicle's earlier journeys estimated, combined
+    # (``AntennaEstimate.combined``), and whose it is for the align report ("vehicle van-3").
+    antenna_prior: AntennaEstimate | None = None
+    antenna_prior_source: str = ""
 
     @property
     def has_altitude(self) -> bool:
@@ -299,6 +348,9 @@ class JourneyResult:
     # (of map: self-calibration's stage 2), ``wait`` and ``map_idle_core_s`` (``colmap.sfm``).
     stage_parts_s: dict[str, dict[str, float]] = field(default_factory=dict)
     window_times: list[WindowTime] = field(default_factory=list)  # every window mapped, in order
+    # This journey's own estimate of its undeclared GPS antenna offset (None: declared, or its
+    # windows did not turn enough), kept so that a vehicle's journeys can be combined.
+    antenna_estimate: AntennaEstimate | None = None
 
 
 @dataclass(frozen=True)

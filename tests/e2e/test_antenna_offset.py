@@ -17,6 +17,8 @@ the camera (``offset_journey_bundle``). Both runs reuse the camera's true calibr
    admin (``PUT /api/v1/vehicles/{id}``) and the bundle without the field: the same, and the
    journey's report says the vehicle's offset was applied.
 3. A bad offset is refused at upload with a 422 naming the field.
+4. Two undeclared journeys of one vehicle through the service: the second combines its estimate
+   with the first's (a smaller sigma), and the vehicle's page shows both.
 
 Measured (printed; ``-rP`` shows it), horizontal median / max sign error and median height error:
 declared 0.27 / 0.35 m, heights -0.07 m; undeclared and estimated (forward -1.07 ± 0.17 m, left
@@ -37,8 +39,9 @@ from app.cli import main
 from app.commands.usage import EXIT_OK
 from app.pipeline.types import CameraModel
 from tests.utils import bundle_factory as bf
-from tests.utils.results.service_support import sign_errors_m, signs_enu
-from tests.utils.stack import ADMIN_KEY, auth, processed_by_celery, sqlite_stack
+from tests.utils.results.service_support import signs_enu
+from tests.utils.stack import (ADMIN_KEY, auth, poll_journey, processed_by_celery, sqlite_stack,
+                               upload)
 
 APPLIED = "GPS antenna offset applied (manifest): forward -1.09 m, left +0.25 m, up -0.72 m"
 
@@ -54,14 +57,15 @@ def _errors(features: list[dict], truth: dict) -> tuple[dict[str, float], dict[s
             {track: float(xyz[2] - true[track][2]) for track, xyz in placed.items()})
 
 
-def _without_offset(bundle: Path, out: Path) -> Path:
-    """``bundle`` with ``gps_antenna_offset_m`` taken out of its manifest."""
+def _without_offset(bundle: Path, out: Path, **changes) -> Path:
+    """``bundle`` with ``gps_antenna_offset_m`` taken out of its manifest and ``changes`` set."""
     with zipfile.ZipFile(bundle) as src, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as dst:
         for name in src.namelist():
             data = src.read(name)
             if name == "manifest.json":
                 manifest = json.loads(data)
                 del manifest["gps_antenna_offset_m"]
+                manifest.update(changes)
                 data = json.dumps(manifest).encode()
             dst.writestr(name, data)
     return out
@@ -144,6 +148,40 @@ def test_the_service_applies_the_vehicles_offset(offset_journey_bundle, own_pg_u
     assert len(errors) >= 5 and max(errors.values()) < 0.6, errors
     assert max(abs(h) for h in height.values()) < 0.3, height
     assert APPLIED.replace("(manifest)", f"(vehicle {vehicle})") in _align_details(body["report"])
+
+
+@pytest.mark.slow
+def test_a_vehicles_journeys_combine_their_estimates(offset_journey_bundle, tmp_path):
+    """Two undeclared journeys of one vehicle through the service (SQLite, the embedded worker):
+    the second adds its own estimate to the first's, and the vehicle's page shows both."""
+    from app.pipeline.config import PipelineConfig
+    from tests.e2e.test_fusion_rendered import seed_calibration
+
+    bundle, truth = offset_journey_bundle
+    vehicle = json.loads(zipfile.ZipFile(bundle).read("manifest.json"))["vehicle_id"]
+    stack = sqlite_stack(tmp_path / "data", embedded_worker=True,
+                         pipeline=PipelineConfig(reuse_known_calibration=True))
+    seed_calibration(stack.url, truth["camera_id"], CameraModel(**truth["camera"]))
+    fleet = stack.key("fleet")
+    lines = []
+    with stack.client() as client:
+        for k in range(2):  # another capture time: another upload of the same drive
+            data = _without_offset(bundle, tmp_path / f"{k}.zip",
+                                   captured_at=f"2026-05-0{k + 1}T10:00:00Z").read_bytes()
+            journey_id = upload(client, fleet, data)
+            body = poll_journey(client, auth(fleet), journey_id,
+                                lambda b: b["status"] in ("done", "failed"), timeout_s=300)
+            assert body["status"] == "done", body["error"]
+            lines.append(next(d for d in _align_details(body["report"]) if "estimated" in d))
+        estimated = client.get(f"/api/v1/vehicles/{vehicle}",
+                               headers=auth(ADMIN_KEY)).json()["gps_antenna_offset_estimated"]
+    print(*lines, sep="\n")
+    assert "earlier" not in lines[0] and lines[0].endswith("; applied"), lines[0]
+    assert f"applied with vehicle {vehicle}'s 1 earlier journey(s)" in lines[1], lines[1]
+    together = lines[1].split("together forward ")[1]
+    own_sigma = float(lines[1].split("± ")[1].split(" ")[0])
+    assert float(together.split("± ")[1].split(" ")[0]) < own_sigma  # two journeys know more
+    assert estimated["n_journeys"] == 2 and abs(estimated["forward_m"] + 1.09) < 0.2
 
 
 @pytest.mark.parametrize("offset, detail", [

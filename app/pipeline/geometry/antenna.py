@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from app.pipeline.geometry import gps_track
-from app.pipeline.types import AntennaOffset
+from app.pipeline.types import AntennaEstimate
 
 MIN_TURN_DEG = 30.0
 MIN_FIXES = 8
@@ -60,8 +60,10 @@ class OffsetEstimate:
     def sigma_m(self) -> float:
         return max(self.sigma_forward_m, self.sigma_left_m)
 
-    def offset(self, source: str = "estimated") -> AntennaOffset:
-        return AntennaOffset(self.forward_m, self.left_m, 0.0, source)
+    def estimate(self) -> AntennaEstimate:
+        """The offset and sigmas alone, as one journey's (what a vehicle's journeys combine)."""
+        return AntennaEstimate(self.forward_m, self.left_m, self.sigma_forward_m,
+                               self.sigma_left_m)
 
 
 @dataclass(frozen=True)

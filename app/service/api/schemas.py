@@ -329,8 +329,20 @@ class VehicleIn(BaseModel):
                     "forgets it")
 
 
+class AntennaEstimateOut(BaseModel):
+    forward_m: float
+    left_m: float
+    sigma_forward_m: float
+    sigma_left_m: float
+    n_journeys: int = Field(description="the vehicle's done journeys whose turns told it")
+
+
 class VehicleOut(BaseModel):
     vehicle_id: str
     gps_antenna_offset_m: AntennaOffsetOut | None
+    gps_antenna_offset_estimated: AntennaEstimateOut | None = Field(
+        None, description="where nothing is set: the horizontal offset the vehicle's journeys "
+                          "estimated from their turns, combined (the worker applies it once its "
+                          "sigma is under 0.2 m)")
     updated_by: str | None = Field(None, description="the admin key's name that set it")
-    updated_at: datetime
+    updated_at: datetime | None = Field(None, description="when it was set (null: never)")

@@ -117,6 +117,9 @@ class JourneyRow(Base):
     # given: that calibration's epoch (``jobs.cameras.reprocess_superseded``; 0009). Its earlier
     # signs are served meanwhile (``serves_result``).
     reprocess_epoch: Mapped[int | None] = mapped_column(Integer)
+    # Its own estimate of an undeclared GPS antenna offset (``AntennaEstimate.to_json``), which
+    # the vehicle's later journeys combine (``jobs.run``; 0013).
+    antenna_estimate: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 
 class JourneySignRow(Base):

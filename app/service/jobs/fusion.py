@@ -120,12 +120,14 @@ def store_journey(session: Session, journey_id: str, attempt: int, journey: Jour
                   result: JourneyResult, timings_s: dict[str, float],
                   known_camera: CameraModel | None, settings: Settings,
                   stored_source: str | None = None) -> bool:
-    """In the caller's transaction: the journey's result (``state.store_result``), its coverage
-    and its calibration flag. False (nothing written) when this run no longer owns the journey."""
+    """In the caller's transaction: the journey's result (``state.store_result``), its coverage,
+    its own antenna offset estimate and its calibration flag. False (nothing written) when this run no longer owns the journey."""
     if not state.store_result(session, journey_id, attempt, journey, result, timings_s,
                               lens=state.LensRule.of(settings)):
         return False
     row = session.get(JourneyRow, journey_id)
+    row.antenna_estimate = (result.antenna_estimate.to_json()
+                            if result.antenna_estimate is not None else None)
     row.calibration_flag = calibration_flag(known_camera, result, settings.calibration_flag_rel,
                                             stored_source)
     if row.calibration_flag:

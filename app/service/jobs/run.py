@@ -99,7 +99,7 @@ def run_journey(journey_id: str, settings: Settings,
                               decode_images=True, progress=lambda fraction: progress(
                                   "extract", 0.0, f"video {100 * fraction:.0f} % decoded"))
         progress("extract", 0.0, f"{len(journey.frames)} frames")
-        journey = _with_vehicle_antenna(url, journey)
+        journey = _with_vehicle_antenna(url, journey_id, journey)
         size = (journey.image_width, journey.image_height)
         if known_camera is not None and (known_camera.width, known_camera.height) != size:
             # The camera's newest epoch is of other frames: its newest epoch of this journey's
@@ -159,16 +159,20 @@ def run_journey(journey_id: str, settings: Settings,
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def _with_vehicle_antenna(url: str, journey: Journey) -> Journey:
+def _with_vehicle_antenna(url: str, journey_id: str, journey: Journey) -> Journey:
     """``journey`` with its vehicle's GPS antenna offset (``PUT /api/v1/vehicles/{id}``) when
-    its manifest gives none; a manifest's wins."""
+    its manifest gives none (a manifest's wins); with neither, with what the vehicle's other done
+    journeys estimated, combined (``state.vehicle_estimate``), for the pipeline to add its own to."""
     if journey.gps_antenna_offset is not None or not journey.vehicle_id:
         return journey
     with session_scope(url) as session:
         row = session.get(VehicleRow, journey.vehicle_id)
         given = row.gps_antenna_offset_m if row is not None else None
+        if not given:
+            prior = state.vehicle_estimate(session, journey.vehicle_id, but=journey_id)
     if not given:
-        return journey
+        return dataclasses.replace(journey, antenna_prior=prior,
+                                   antenna_prior_source=f"vehicle {journey.vehicle_id}")
     offset = AntennaOffset(float(given["forward"]), float(given["left"]), float(given["up"]),
                            source=f"vehicle {journey.vehicle_id}")
     return dataclasses.replace(journey, gps_antenna_offset=offset)

@@ -18,8 +18,9 @@ from sqlalchemy import and_, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
 from app.pipeline.colmap.joint import MAX_POINTS_PER_WINDOW, thinned
-from app.pipeline.types import (INTRINSICS_STD, CameraModel, Journey as JourneyData,
-                                JourneyResult, StageReport, WindowObservations)
+from app.pipeline.types import (INTRINSICS_STD, AntennaEstimate, CameraModel,
+                                Journey as JourneyData, JourneyResult, StageReport,
+                                WindowObservations)
 from app.service.db.models import (WAITING_FOR_CAMERA, CalibrationRow, CameraFitRow, JourneyRow,
                                    JourneySignRow, utc_now)
 
@@ -426,3 +427,15 @@ def _sigma_columns(calib) -> dict[str, float | None]:
     if len(std) != len(INTRINSICS_STD):
         return {}
     return {f"sigma_{k}": _finite_or_none(v) for k, v in zip(INTRINSICS_STD, std)}
+
+
+def vehicle_estimate(session: Session, vehicle_id: str, but: str | None = None
+                     ) -> AntennaEstimate | None:
+    """What the vehicle's done journeys (but journey ``but``) estimated of its undeclared GPS
+    antenna offset, combined (``AntennaEstimate.combined``); None when none did."""
+    rows = session.execute(select(JourneyRow.id, JourneyRow.antenna_estimate)
+                           .where(JourneyRow.vehicle_id == vehicle_id,
+                                  JourneyRow.status == "done")).all()
+    return AntennaEstimate.combined([AntennaEstimate.from_json(estimate)
+                                     for journey_id, estimate in rows
+                                     if isinstance(estimate, dict) and journey_id != but])

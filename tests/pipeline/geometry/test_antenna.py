@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from app.pipeline.geometry import gps_track
 from app.pipeline.geometry.antenna import correlation_time, estimate_offset
+from app.pipeline.types import AntennaEstimate
 
 FORWARD_M, LEFT_M = -1.09, 0.25  # KITTI's GPS/INS unit, horizontally
 
@@ -114,3 +115,15 @@ def test_a_stop_before_the_turn_does_not_spoil_it():
     est = estimate_offset([(t_s[:150], camera[:150] @ R)], t_s[::2], fixes[::2])
     assert est is not None
     assert abs(est.forward_m - FORWARD_M) < 0.3 and abs(est.left_m - LEFT_M) < 0.3, est
+
+
+def test_journeys_estimates_combine_by_their_sigmas():
+    sure = AntennaEstimate(-1.0, 0.2, 0.1, 0.4)
+    unsure = AntennaEstimate(-2.0, 0.6, 0.3, 0.4, n_journeys=2)
+    both = AntennaEstimate.combined([sure, unsure])
+    # Forward: weights 100 and 11.1, so 90 % of the sure one; left: equal weights.
+    assert both.forward_m == pytest.approx(-1.1) and both.left_m == pytest.approx(0.4)
+    assert both.sigma_forward_m == pytest.approx((100 + 1 / 0.09) ** -0.5)
+    assert both.sigma_left_m == pytest.approx(0.4 / np.sqrt(2)) and both.n_journeys == 3
+    assert AntennaEstimate.combined([]) is None
+    assert AntennaEstimate.from_json(both.to_json()) == both

@@ -8,11 +8,13 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Path, status
+from sqlalchemy.orm import Session
 from starlette.convertors import PathConvertor, register_url_convertor
 
 from app.service.api.schemas import AUTH_ERRORS, NO_NUL, ErrorOut, VehicleIn, VehicleOut, echoed_id
 from app.service.db.models import VehicleRow, utc_now
 from app.service.deps import Admin, SessionDep
+from app.service.jobs import state
 
 router = APIRouter(prefix="/api/v1")
 
@@ -26,21 +28,30 @@ VehicleId = Annotated[str, Path(pattern=NO_NUL, max_length=200,
                                 description="the manifest's vehicle_id")]
 
 
-def _out(row: VehicleRow) -> dict[str, Any]:
-    return {"vehicle_id": row.vehicle_id, "gps_antenna_offset_m": row.gps_antenna_offset_m,
-            "updated_by": row.updated_by, "updated_at": row.updated_at}
+def _out(session: Session, vehicle_id: str, row: VehicleRow | None) -> dict[str, Any]:
+    estimate = state.vehicle_estimate(session, vehicle_id)
+    return {"vehicle_id": vehicle_id,
+            "gps_antenna_offset_m": row.gps_antenna_offset_m if row is not None else None,
+            "gps_antenna_offset_estimated": estimate.to_json() if estimate is not None else None,
+            "updated_by": row.updated_by if row is not None else None,
+            "updated_at": row.updated_at if row is not None else None}
 
 
 @router.get("/vehicles/{vehicle_id:vehicle_id}", response_model=VehicleOut,
             summary="A vehicle's GPS antenna offset (admin)",
+            description="The offset set for the vehicle, and what its done journeys estimated "
+                        "from their turns where none was given, combined.",
             responses={**AUTH_ERRORS, 404: {"model": ErrorOut,
-                                            "description": "nothing was set for this vehicle"}})
+                                            "description": "nothing was set for this vehicle "
+                                                           "and none of its journeys estimated "
+                                                           "an offset"}})
 def get_vehicle(vehicle_id: VehicleId, who: Admin, session: SessionDep) -> dict[str, Any]:
     row = session.get(VehicleRow, vehicle_id)
-    if row is None:
+    out = _out(session, vehicle_id, row)
+    if row is None and out["gps_antenna_offset_estimated"] is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND,
-                            f"nothing set for vehicle {echoed_id(vehicle_id)}")
-    return _out(row)
+                            f"nothing set for vehicle {echoed_id(vehicle_id)}, nor estimated")
+    return out
 
 
 @router.put("/vehicles/{vehicle_id:vehicle_id}", response_model=VehicleOut,
@@ -63,4 +74,4 @@ def put_vehicle(vehicle_id: VehicleId, body: VehicleIn, who: Admin,
     row.updated_by, row.updated_at = who.name, utc_now()
     session.add(row)
     session.flush()
-    return _out(row)
+    return _out(session, vehicle_id, row)
