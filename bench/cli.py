@@ -272,7 +272,8 @@ def _add_real_ego_parser(bench_sub) -> None:
         "(e.g. ../shared/real/kitti0009_poses.json).")
     g.add_argument("bundle", help="the journey bundle (.zip)")
     g.add_argument("--calibration", required=True, help="the camera, a JSON {fx, fy, cx, cy, ...}")
-    g.add_argument("--poses", help="JSON {frames: [{frame, T_world_cam}]}: the true poses")
+    g.add_argument("--poses", help="the true poses: JSON {frames: [{frame, T_world_cam}]}, or "
+                   "{T_enu_cam: [...]} one per frame in order")
     g.set_defaults(func=run_real_ego_command)
 
 

@@ -49,7 +49,16 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
     }
 
 
+# Details worth a line on the terminal too (the rest are in the JSON report): where the GPS
+# positions were moved from, which moves every sign.
+SHOWN_DETAILS = ("GPS antenna offset",)
+
+
 def stage_summary(reports: Sequence[StageReport], stream=None) -> None:
-    """One line per stage that ran: what it found or why it failed (``stream`` None: stdout)."""
+    """One line per stage that ran: what it found or why it failed, and its SHOWN_DETAILS
+    (``stream`` None: stdout)."""
     for r in reports:
         print(f"{r.stage:<12} {r.summary}", file=stream or sys.stdout)
+        for line in r.details:
+            if line.startswith(SHOWN_DETAILS):
+                print(f"{'':<12} {line}", file=stream or sys.stdout)

@@ -7,7 +7,8 @@ sign tracks; here every frame is put on one made-up track so that ego-motion run
 drive exactly as it would around a sign (same windows, step, front end and knobs).
 
 Reported per ego-motion window, against the true ``T_world_cam`` of the drive (a JSON file with
-``frames: [{frame, T_world_cam}]``, as ``kitti0009_poses.json``), with no alignment needed:
+``frames: [{frame, T_world_cam}]``, as ``kitti0009_poses.json``, or ``T_enu_cam``: one per frame
+in order, as ``kitti_turn51_poses.json``):
 
 - the window's registration and reprojection error (the ego_motion stage's report);
 - relative rotation error (deg) between frames ``GAP`` mapped frames apart: the angle of
@@ -16,7 +17,9 @@ Reported per ego-motion window, against the true ``T_world_cam`` of the drive (a
   those frames, in the first one's camera frame;
 - scale drift: each step's estimated length over its true length, divided by the window's median
   ratio; the 90th percentile of its deviation from 1 (a window whose scale wanders inside itself
-  places signs off along their rays, whatever the GPS says).
+  places signs off along their rays, whatever the GPS says);
+- trajectory error: the rms distance of the window's camera centres from the true ones after the
+  best similarity between them (its shape, apart from where the GPS puts it).
 
 Without a poses file only the registration is reported.
 """
@@ -41,6 +44,7 @@ class WindowFigures:
     rot_err_deg: np.ndarray  # (P,) per frame pair
     dir_err_deg: np.ndarray  # (P,)
     scale_dev: np.ndarray  # (P,) |step ratio / median - 1|
+    trajectory_rms_m: float | None = None  # after a similarity to the true centres
 
 
 def probe_journey(journey):
@@ -72,6 +76,26 @@ def relative_errors(T_est: np.ndarray, T_true: np.ndarray, gap: int = GAP
     return rot, direction, np.abs(ratio / np.median(ratio) - 1.0)
 
 
+def trajectory_rms_m(c_est: np.ndarray, c_true: np.ndarray) -> float:
+    """Rms distance (m) of centres ``c_est`` (K, 3, any frame and scale) from ``c_true`` (K, 3)
+    after the least-squares similarity between them (Umeyama's scale; Kabsch's rotation, which a
+    flat road's planar centres do not trouble)."""
+    src, dst = c_est - c_est.mean(0), c_true - c_true.mean(0)
+    R = Rotation.align_vectors(dst, src)[0]
+    scale = float(np.sum(dst * R.apply(src)) / np.sum(src * src))
+    return float(np.sqrt(np.mean(np.sum((scale * R.apply(src) - dst) ** 2, axis=1))))
+
+
+def true_poses(poses_json: Path, frame_ids: list[str]) -> list[np.ndarray | None]:
+    """Each frame's true camera -> world pose, None where the file has none."""
+    data = json.loads(poses_json.read_text())
+    if "frames" in data:
+        by_frame = {f["frame"]: np.asarray(f["T_world_cam"], float) for f in data["frames"]}
+        return [by_frame.get(frame_id) for frame_id in frame_ids]
+    T = np.asarray(data["T_enu_cam"], float)
+    return [T[i] if i < len(T) else None for i in range(len(frame_ids))]
+
+
 def evaluate(bundle: Path, camera_json: Path, poses_json: Path | None,
              workdir: Path) -> tuple[list[WindowFigures], str]:
     """Ego-motion of ``bundle`` with the camera of ``camera_json``; (figures per window, the
@@ -87,24 +111,22 @@ def evaluate(bundle: Path, camera_json: Path, poses_json: Path | None,
                                      read_calibration(str(camera_json)))
     config = pipeline_config({"reuse_known_calibration": True})
     recon = reconstruct(probe_journey(journey), config, workdir / "run", known_camera=camera)
-    true = None
-    if poses_json is not None:
-        by_frame = {f["frame"]: np.asarray(f["T_world_cam"], float)
-                    for f in json.loads(poses_json.read_text())["frames"]}
-        true = [by_frame.get(f.frame_id) for f in journey.frames]
+    true = None if poses_json is None else true_poses(poses_json, journey.frame_ids)
     ego = next(r for r in recon.reports if r.stage == "ego_motion")
     lines = dict(d.split(": ", 1) for d in ego.details)
     out = []
     for wp in recon.poses:
         lo, hi = wp.window
         rot = direction = dev = np.zeros(0)
+        rms_m = None
         if true is not None:
             keep = np.array([true[i] is not None for i in wp.frame_idx], bool)
             if keep.sum() > GAP:
-                rot, direction, dev = relative_errors(
-                    wp.T_model_cam[keep], np.stack([true[i] for i in wp.frame_idx[keep]]))
+                T_true = np.stack([true[i] for i in wp.frame_idx[keep]])
+                rot, direction, dev = relative_errors(wp.T_model_cam[keep], T_true)
+                rms_m = trajectory_rms_m(wp.T_model_cam[keep, :3, 3], T_true[:, :3, 3])
         out.append(WindowFigures((lo, hi), lines.get(f"frames {lo}-{hi - 1}", ""), rot,
-                                 direction, dev))
+                                 direction, dev, rms_m))
     return out, ego.summary
 
 
@@ -114,14 +136,17 @@ def table(name: str, figures: list[WindowFigures], summary: str) -> str:
 
     rows = [f"**{name}**: {summary}", "",
             "| window (frames) | registration | rotation error deg median / p90 | "
-            "direction error deg median / p90 | scale drift median / p90 |",
-            "| --- | --- | --- | --- | --- |"]
+            "direction error deg median / p90 | scale drift median / p90 | "
+            "trajectory rms after a similarity (m) |",
+            "| --- | --- | --- | --- | --- | --- |"]
     for f in figures:
+        rms = "–" if f.trajectory_rms_m is None else f"{f.trajectory_rms_m:.3f}"
         rows.append(f"| {f.frames[0]}-{f.frames[1] - 1} | {f.registration} | "
-                    f"{stat(f.rot_err_deg)} | {stat(f.dir_err_deg)} | {stat(f.scale_dev)} |")
+                    f"{stat(f.rot_err_deg)} | {stat(f.dir_err_deg)} | {stat(f.scale_dev)} | "
+                    f"{rms} |")
     every = [np.concatenate([getattr(f, k) for f in figures] or [np.zeros(0)])
              for k in ("rot_err_deg", "dir_err_deg", "scale_dev")]
-    rows.append(f"| all | | {stat(every[0])} | {stat(every[1])} | {stat(every[2])} |")
+    rows.append(f"| all | | {stat(every[0])} | {stat(every[1])} | {stat(every[2])} | |")
     return "\n".join(rows)
 
 

@@ -94,13 +94,15 @@ def _summary(label: str, errors: dict[str, float], height: dict[str, float]) -> 
 
 @pytest.mark.slow
 def test_signmap_process_applies_the_declared_offset(offset_journey_bundle, tmp_path,
-                                                     monkeypatch):
+                                                     monkeypatch, capsys):
     bundle, truth = offset_journey_bundle
     monkeypatch.setenv("SIGNMAP_PIPELINE__REUSE_KNOWN_CALIBRATION", "true")
     features, report = _process(bundle, truth, tmp_path / "declared")
     errors, height = _errors(features, truth)
     undeclared = _without_offset(bundle, tmp_path / "undeclared.zip")
+    capsys.readouterr()
     features_e, report_e = _process(undeclared, truth, tmp_path / "estimated")
+    assert "GPS antenna offset estimated: forward" in capsys.readouterr().out  # on the terminal
     errors_e, height_e = _errors(features_e, truth)
     monkeypatch.setenv("SIGNMAP_PIPELINE__ANTENNA_OFFSET_MAX_SIGMA_M", "0")
     features_u, report_u = _process(undeclared, truth, tmp_path / "undeclared")
