@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pipeline.colmap.refine import Gauge, _held_fit, refine_all_intrinsics
+from app.pipeline.colmap.refine import Gauge, _held_fit, errors_by_image, refine_all_intrinsics
 from app.pipeline.colmap.sfm import COLMAP_PIXEL_OFFSET, _colmap_camera, camera_model, colmap_pool
 from app.pipeline.types import CameraModel, WindowObservations
 
@@ -142,17 +142,11 @@ def _observations(rec) -> WindowObservations:
 
 
 def _rms_per_part(rec, image_part: dict[int, int], n_parts: int) -> np.ndarray:
+    """(n_parts,) rms reprojection error (px) of each part's images (``image_part``: image id ->
+    part), an error capped at 4 px and a point behind the camera counted as 4 px."""
     errors: list[list[np.ndarray]] = [[] for _ in range(n_parts)]
-    for image_id, image in rec.images.items():
-        observed = image.get_observation_points2D() if image.has_pose else []
-        if not observed:
-            continue
-        xy_observed = np.array([p.xy for p in observed])  # (M, 2)
-        xyz = np.array([rec.points3D[p.point3D_id].xyz for p in observed])  # (M, 3)
-        T_cam_model = np.asarray(image.cam_from_world().matrix())  # (3, 4)
-        p_cam = xyz @ T_cam_model[:, :3].T + T_cam_model[:, 3]
-        xy = rec.camera(image.camera_id).img_from_cam(p_cam)  # nan rows behind the camera
-        errors[image_part[image_id]].append(np.linalg.norm(xy - xy_observed, axis=1))
+    for image_id, e in errors_by_image(rec).items():
+        errors[image_part[image_id]].append(e)
     out = np.full(n_parts, np.nan)
     for part, chunks in enumerate(errors):
         if chunks:
