@@ -212,7 +212,7 @@ def _moved(journey: Journey, offset: AntennaOffset, xyz_gps: np.ndarray, xyz_ali
            ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """``xyz_gps`` and ``xyz_align`` minus ``offset`` (``gps_track.antenna_to_camera``; the
     direction of travel taken from ``xyz_align``), and the align report's line on it."""
-    t_s = np.array([f.timestamp_s for f in journey.frames])
+    t_s = journey.timestamps_s
     forward = gps_track.camera_travel_direction(t_s, xyz_align, offset)
     moved_align = gps_track.antenna_to_camera(xyz_align, offset, forward)
     moved_gps = moved_align if xyz_gps is xyz_align else gps_track.antenna_to_camera(
@@ -234,14 +234,11 @@ def _estimated_offset(journey: Journey, recon: Reconstruction, config: PipelineC
     was estimated either way."""
     if journey.gps_antenna_offset is not None or not recon.poses:
         return recon, None
-    t_s = np.array([f.timestamp_s for f in journey.frames])
-    fixes = journey.gps_fixes
-    if fixes is None:  # one fix per frame (EXIF): the frames' positions are the fixes
+    t_s = journey.timestamps_s
+    if journey.gps_fixes is None:  # one fix per frame (EXIF): the frames' positions are the fixes
         t_fix_s, xyz_fix = t_s, recon.xyz_gps
     else:
-        t_fix_s = fixes.timestamp_s
-        xyz_fix = recon.origin.to_local(fixes.lat_deg, fixes.lon_deg,
-                                        fixes.alt_m if journey.has_altitude else None)
+        t_fix_s, xyz_fix = journey.gps_fixes.timestamp_s, fixes_local(journey, recon.origin)
     found = antenna.estimate_offset([(t_s[p.frame_idx], p.T_model_cam[:, :3, 3])
                                      for p in recon.poses], t_fix_s, xyz_fix)
     own = found.estimate() if found is not None else None
@@ -412,7 +409,7 @@ def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel
 def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig, *,
                  progress: ProgressFn = no_progress) -> JourneyResult:
     """The stages after ego-motion: align the windows to the GPS, triangulate the signs."""
-    origin, xyz_gps, xyz_align = recon.origin, recon.xyz_gps, recon.xyz_align
+    origin = recon.origin
     origin_lat_lon_alt = (origin.lat0_deg, origin.lon0_deg, origin.alt0_m)
     too_short = list(recon.too_short)
     if not recon.tracks:
@@ -472,7 +469,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
 def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarray,
                 config: PipelineConfig) -> plan.JourneyPlan:
     """``the_plan`` with the turns the journey's frames show (``steps.image_turns``)."""
-    timestamp_s = np.array([f.timestamp_s for f in journey.frames])
+    timestamp_s = journey.timestamps_s
     frame_idx = image_turns.sample_frames(timestamp_s, config.turn_image_interval_s,
                                           config.turn_image_max_frames)
     reduce = max(k for k in REDUCED_READ
@@ -495,9 +492,16 @@ def gps_trusted(journey: Journey, config: PipelineConfig) -> np.ndarray | None:
     (``gps_track.in_dropout``); None when the journey kept no fixes."""
     if journey.gps_fixes is None:
         return None
-    t_frame_s = np.array([f.timestamp_s for f in journey.frames])
+    t_frame_s = journey.timestamps_s
     return ~gps_track.in_dropout(t_frame_s, journey.gps_fixes.timestamp_s,
                                  config.gps_dropout_gap_factor)
+
+
+def fixes_local(journey: Journey, origin: geodesy.LocalFrame) -> np.ndarray:
+    """(M, 3) the journey's GPS fixes (``journey.gps_fixes``, not None) in ``origin``'s frame."""
+    fixes = journey.gps_fixes
+    return origin.to_local(fixes.lat_deg, fixes.lon_deg,
+                           fixes.alt_m if journey.has_altitude else None)
 
 
 def frame_positions(journey: Journey, origin: geodesy.LocalFrame,
@@ -507,11 +511,10 @@ def frame_positions(journey: Journey, origin: geodesy.LocalFrame,
     fixes = journey.gps_fixes
     if fixes is None:
         return xyz_linear
-    xyz_fix = origin.to_local(fixes.lat_deg, fixes.lon_deg,
-                              fixes.alt_m if journey.has_altitude else None)
+    xyz_fix = fixes_local(journey, origin)
     if not (journey.has_altitude and np.all(np.isfinite(fixes.alt_m))):
         xyz_fix[:, 2] = np.nan  # altitude missing somewhere: the vertical stays as read
-    t_frame_s = np.array([f.timestamp_s for f in journey.frames])
+    t_frame_s = journey.timestamps_s
     return gps_track.smoothed_positions(t_frame_s, xyz_linear, fixes.timestamp_s, xyz_fix,
                                         journey.gps_noise_m)
 

@@ -206,6 +206,11 @@ class Journey:
     def frame_ids(self) -> list[str]:
         return [f.frame_id for f in self.frames]
 
+    @property
+    def timestamps_s(self) -> np.ndarray:
+        """(N,) the frames' timestamps, seconds."""
+        return np.array([f.timestamp_s for f in self.frames])
+
 
 # The intrinsics ``Calibration.intrinsics_std`` gives stage 2's standard deviations of, in order.
 INTRINSICS_STD = ("fx", "fy", "cx", "cy", "k1", "k2")

@@ -68,7 +68,7 @@ def with_gps(journey: Journey, recon, drawn: DrawnGps, config: PipelineConfig):
     the alignment takes)."""
     from app.pipeline.run import frame_positions
 
-    t_s = np.array([f.timestamp_s for f in journey.frames])
+    t_s = journey.timestamps_s
     fixes = (GpsTrack(t_s, drawn.lat_deg, drawn.lon_deg, drawn.alt_m)
              if journey.gps_fixes is not None else None)
     noise_m = (white_noise_m(t_s, drawn.lat_deg, drawn.lon_deg) if fixes is not None

@@ -182,7 +182,7 @@ def collect(replay_dirs: list[Path], corpus_dir: Path) -> list[JourneyFocal]:
                 continue
             truth = json.loads((Path(corpus_dir) / path.stem / "truth.json").read_text())
             xyz_true = np.array([np.asarray(f["T_world_cam"])[:3, 3] for f in truth["frames"]])
-            t_frame_s = np.array([f.timestamp_s for f in journey.frames])
+            t_frame_s = journey.timestamps_s
             t_fix_s = None if journey.gps_fixes is None else journey.gps_fixes.timestamp_s
             gps = focal_evidence(recon.poses, recon.xyz_align,
                                  gps_trusted(journey, PipelineConfig(**kept["config"])),
@@ -259,7 +259,7 @@ def window_rotation_table(records_path: Path, corpus_dir: Path) -> str:
             journey = read_bundle(Path(corpus_dir) / r["name"] / "bundle.zip", Path(tmp))
         origin = geodesy.frame_at(journey.lat_deg[0], journey.lon_deg[0], None, cfg.metric_frame)
         xyz_gps = origin.to_local(journey.lat_deg, journey.lon_deg, None)
-        heading = gps_heading_deg(xyz_gps, np.array([f.timestamp_s for f in journey.frames]),
+        heading = gps_heading_deg(xyz_gps, journey.timestamps_s,
                                   cfg)
         a, b = cal["windows"][0]
         gps_deg = float(np.max(np.abs(heading[a:b] - heading[a])))

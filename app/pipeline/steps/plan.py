@@ -112,7 +112,7 @@ def with_image_turns(the_plan: JourneyPlan, xyz_gps: np.ndarray, timestamp_s: np
 def plan_journey(journey: Journey, xyz_gps: np.ndarray, config: PipelineConfig,
                  known_camera: CameraModel | None = None) -> JourneyPlan:
     """The plan of ``journey``; ``xyz_gps`` (N, 3): its GPS fixes in the metric frame."""
-    timestamp_s = np.array([f.timestamp_s for f in journey.frames])
+    timestamp_s = journey.timestamps_s
     sigma_m = gps_sigma_m(journey)
     turn_windows, calib_windows, look = turns_and_candidates(xyz_gps[:, :2], timestamp_s,
                                                              config, sigma_m)

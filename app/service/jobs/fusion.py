@@ -121,7 +121,8 @@ def store_journey(session: Session, journey_id: str, attempt: int, journey: Jour
                   known_camera: CameraModel | None, settings: Settings,
                   stored_source: str | None = None) -> bool:
     """In the caller's transaction: the journey's result (``state.store_result``), its coverage,
-    its own antenna offset estimate and its calibration flag. False (nothing written) when this run no longer owns the journey."""
+    its own antenna offset estimate and its calibration flag. False (nothing written) when this
+    run no longer owns the journey."""
     if not state.store_result(session, journey_id, attempt, journey, result, timings_s,
                               lens=state.LensRule.of(settings)):
         return False

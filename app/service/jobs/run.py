@@ -169,10 +169,10 @@ def _with_vehicle_antenna(url: str, journey_id: str, journey: Journey) -> Journe
         row = session.get(VehicleRow, journey.vehicle_id)
         given = row.gps_antenna_offset_m if row is not None else None
         if not given:
-            prior = state.vehicle_estimate(session, journey.vehicle_id, but=journey_id)
-    if not given:
-        return dataclasses.replace(journey, antenna_prior=prior,
-                                   antenna_prior_source=f"vehicle {journey.vehicle_id}")
+            return dataclasses.replace(
+                journey, antenna_prior=state.vehicle_estimate(session, journey.vehicle_id,
+                                                              but=journey_id),
+                antenna_prior_source=f"vehicle {journey.vehicle_id}")
     offset = AntennaOffset(float(given["forward"]), float(given["left"]), float(given["up"]),
                            source=f"vehicle {journey.vehicle_id}")
     return dataclasses.replace(journey, gps_antenna_offset=offset)
