@@ -26,9 +26,9 @@ from app.pipeline.geometry import antenna, geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
-from app.pipeline.types import (AntennaEstimate, AntennaOffset, Calibration, CameraModel,
-                                Journey, JourneyResult, PipelineError, ProgressFn, RejectedSign,
-                                StageReport, WindowTime, no_progress)
+from app.pipeline.types import (AntennaEstimate, AntennaOffset, BrokenWindow, Calibration,
+                                CameraModel, Journey, JourneyResult, PipelineError, ProgressFn,
+                                RejectedSign, StageReport, WindowTime, no_progress)
 
 log = logging.getLogger(__name__)
 
@@ -423,24 +423,39 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
     tracks, poses, camera = recon.tracks, recon.poses, recon.calib.camera
 
     with journal.stage("align") as entry, clock.stage("align"):
-        # A window that cannot be aligned (the car stood still through it) is dropped.
-        dropped: list[str] = []
+        # A window that cannot be aligned (the car stood still through it) is dropped; one that
+        # disagrees with the GPS is mended where it can be (align.mend).
+        notes: list[str] = []
         trusted = gps_trusted(journey, config)
         recon, antenna_estimate = _estimated_offset(journey, recon, config)
         xyz_gps, xyz_align = recon.xyz_gps, recon.xyz_align
         untrusted = ([] if trusted is None or trusted.all() else
                      [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
                       "positions neither align nor judge a window"])
+        limit_m = place_signs.alignment_limit_m(journey.gps_noise_m, config)
+        broken: list[BrokenWindow] = []
+
+        def on_broken(w: align.AlignedWindow, fix: align.Mend) -> None:
+            first, last = int(w.poses.frame_idx[0]), int(w.poses.frame_idx[-1])
+            broken.append(BrokenWindow(
+                first, last, float(w.info["rms_m"]), float(limit_m), fix.mended, fix.how,
+                tuple(sorted({t.track_id for t in tracks
+                              if ((t.frame_idx >= first) & (t.frame_idx <= last)).any()}))))
+            notes.append(f"frames {first}-{last}: GPS rms {w.info['rms_m']:.2f} m, over the "
+                           f"{limit_m:.2f} m limit; {fix.how}")
+
         aligned = align.align_windows(
             poses, xyz_align, joint=config.alignment_joint,
             sigmas=align.JointSigmas(gps_m=config.gps_sigma_m),
-            max_independent_rms_m=(place_signs.alignment_limit_m(journey.gps_noise_m, config)
-                                   if config.alignment_unlink_broken else None),
-            on_dropped=lambda p, why: dropped.append(
+            max_independent_rms_m=(limit_m if config.alignment_unlink_broken
+                                   or config.alignment_mend_broken else None),
+            on_dropped=lambda p, why: notes.append(
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
-            xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted)
+            xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted,
+            mend_broken=config.alignment_mend_broken, on_broken=on_broken,
+            min_piece_frames=config.short_alignment_min_frames)
         entry.take(align.report(len(poses), aligned,
-                                list(recon.gps_notes) + untrusted + dropped))
+                                list(recon.gps_notes) + untrusted + notes))
         if not aligned:
             raise PipelineError("align", "no reconstructed window could be aligned to GPS "
                                 "(the GPS track does not move enough around the signs)")
@@ -463,7 +478,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                          origin_lat_lon_alt=origin_lat_lon_alt, report=journal.reports,
                          stage_parts_s=dict(recon.stage_parts_s),
                          window_times=list(recon.window_times),
-                         antenna_estimate=antenna_estimate)
+                         antenna_estimate=antenna_estimate, broken_windows=broken)
 
 
 def _image_look(journey: Journey, the_plan: plan.JourneyPlan, xyz_gps: np.ndarray,

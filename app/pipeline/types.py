@@ -356,6 +356,22 @@ class JourneyResult:
     # This journey's own estimate of its undeclared GPS antenna offset (None: declared, or its
     # windows did not turn enough), kept so that a vehicle's journeys can be combined.
     antenna_estimate: AntennaEstimate | None = None
+    broken_windows: list[BrokenWindow] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class BrokenWindow:
+    """An ego-motion window whose own alignment disagreed with the GPS beyond ``limit_m`` (the
+    align stage): journey frames ``first_frame``..``last_frame``, its GPS rms (m), whether it
+    was mended and how (``steps.align.mend``), and the sign tracks with a frame in it."""
+
+    first_frame: int
+    last_frame: int
+    rms_m: float
+    limit_m: float
+    mended: bool
+    how: str
+    track_ids: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.stats import bootstrap
 
 from bench.corpus.antenna import antenna_summary, table_antenna
+from bench.corpus.broken import broken_summary, table_broken
 from bench.corpus.by_range import range_summary, table_range
 from bench.paper.metrics import true_distortion_error_px
 from bench.paper.plots import save_figure, plt
@@ -394,7 +395,8 @@ def build_report(meta: dict, records: list[dict]) -> dict:
     return {"meta": meta, "summary": {h: half_summary(rs) for h, rs in by_half.items()},
             "failures": group_failures(records), "params": param_comparison(records),
             "clock": clock_summary(records), "by_range": range_summary(records, gps_kind),
-            "antenna": antenna_summary(records), "journeys": records}
+            "antenna": antenna_summary(records), "broken": broken_summary(records),
+            "journeys": records}
 
 
 def _rate(rate: dict) -> str:
@@ -562,6 +564,10 @@ def _table_antenna(report: dict) -> str:
     return table_antenna(report.get("antenna"))
 
 
+def _table_broken(report: dict) -> str:
+    return table_broken(report["broken"]) if "broken" in report else ""
+
+
 def render_markdown(report: dict) -> str:
     m = report["meta"]
     head = (f"# Signmap corpus bench {m.get('date')}{' ' + m['tag'] if m.get('tag') else ''}\n\n"
@@ -574,8 +580,8 @@ def render_markdown(report: dict) -> str:
             f"{'antenna offsets undeclared; ' if m.get('antenna_undeclared') else ''}"
             f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
             f"this run {fmt(m.get('wall_s'), 0)} s. {BAR_TEXT}\n\n")
-    tables = (table_summary, _table_range, _table_antenna, table_sigma, table_failures,
-              table_clock, table_params, table_journeys)
+    tables = (table_summary, _table_range, _table_broken, _table_antenna, table_sigma,
+              table_failures, table_clock, table_params, table_journeys)
     return head + "\n\n".join(text for t in tables if (text := t(report))) + "\n"
 
 

@@ -30,6 +30,7 @@ from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult, StageReport
 from bench.corpus import antenna, replay
+from bench.corpus.broken import broken_record
 from bench.corpus import report as corpus_report
 from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
                                  mappable_ids, true_distortion_error_px, truth_id)
@@ -183,6 +184,7 @@ def journey_record(entry: dict, out: RunOutput, truth: dict, *, calibrate_only: 
                                                  placed, unmatched)
                                      for i in mappable if i not in found}
         record["rejected"] = ev["rejected"]
+        record["broken_windows"] = broken_record(out.result)
     return record
 
 

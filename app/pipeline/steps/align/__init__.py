@@ -24,13 +24,14 @@ from typing import Callable
 import numpy as np
 
 from app.pipeline.steps.align.joint import JointSigmas, align_group
+from app.pipeline.steps.align.mend import Mend, mend_window
 from app.pipeline.steps.align.track_poses import TrackPoses, track_poses
 from app.pipeline.steps.align.window import (AlignedWindow, centre_rms_m, shared_rows,
                                              align_window, fit_rows)
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.types import StageReport
 
-__all__ = ["AlignedWindow", "JointSigmas", "TrackPoses", "align_window", "align_windows",
+__all__ = ["AlignedWindow", "JointSigmas", "Mend", "TrackPoses", "align_window", "align_windows",
            "fit_rows", "report", "track_poses"]
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,9 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
                   max_independent_rms_m: float | None = None,
                   on_dropped: Callable[[WindowPoses, str], None] | None = None,
                   xyz_check: np.ndarray | None = None,
-                  trusted: np.ndarray | None = None) -> list[AlignedWindow]:
+                  trusted: np.ndarray | None = None, mend_broken: bool = False,
+                  on_broken: Callable[[AlignedWindow, Mend], None] | None = None,
+                  min_piece_frames: int = 10) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
 
     Each window is first aligned on its own (``align_window``, which handles the straight-road
@@ -59,6 +62,9 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     report their residual (``info["rms_m"]``) against ``xyz_check`` too (``_with_residuals_to``).
     ``trusted`` (N,) bool: the frames whose GPS positions fit and judge the windows (``fit_rows``:
     a dropout's interpolated positions neither pull a window nor make it look broken).
+    With ``mend_broken``, a broken window is replaced by what ``mend.mend_window`` makes of it
+    (pieces of at least ``min_piece_frames`` fixes), and both are passed to ``on_broken``; a piece
+    is linked to none either.
     """
     aligned = []
     for p in poses:
@@ -68,16 +74,22 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
             log.warning("window frames %d-%d not aligned to GPS: %s", *p.window, exc)
             if on_dropped is not None:
                 on_dropped(p, str(exc))
+    if max_independent_rms_m is not None:
+        checked = (aligned if xyz_check is None else
+                   _with_residuals_to(aligned, xyz_check, trusted))
+        aligned = [replace(w, info={**w.info, "broken": True})
+                   if c.info["rms_m"] > max_independent_rms_m else w
+                   for w, c in zip(aligned, checked)]
+        if mend_broken:
+            aligned = _mended(aligned, xyz_gps, max_independent_rms_m, xyz_check, trusted,
+                              min_piece_frames, on_broken)
     if joint:
-        checked = aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check,
-                                                                        trusted)
-        linkable = [max_independent_rms_m is None or w.info["rms_m"] <= max_independent_rms_m
-                    for w in checked]
+        linkable = [not w.info.get("broken") and "mend" not in w.info for w in aligned]
         for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
                                                  linkable)):
             joint_windows = ([aligned[group[0]]] if len(group) == 1 else
                              align_group([aligned[k] for k in group], xyz_gps, sigmas,
-                                          trusted))
+                                         trusted))
             for k, window in zip(group, joint_windows):
                 aligned[k] = replace(window, info={**window.info, "group": g})
     return aligned if xyz_check is None else _with_residuals_to(aligned, xyz_check, trusted)
@@ -91,9 +103,32 @@ def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray,
     check and the sign uncertainty were chosen on residuals to the fixes as read."""
     out = []
     for w in aligned:
+        if "mend" in w.info:  # judged against the fixes as read when it was mended
+            out.append(w)
+            continue
         use = fit_rows(w.poses.frame_idx, trusted)
         out.append(replace(w, info={**w.info, "rms_fit_m": w.info["rms_m"], "rms_m": centre_rms_m(
             w.T_world_cam[use], xyz[w.poses.frame_idx[use]])}))
+    return out
+
+
+def _mended(aligned: list[AlignedWindow], xyz_gps: np.ndarray, limit_m: float,
+            xyz_check: np.ndarray | None, trusted: np.ndarray | None, min_piece_frames: int,
+            on_broken: Callable[[AlignedWindow, Mend], None] | None) -> list[AlignedWindow]:
+    """``aligned`` with each broken window replaced by its ``mend.mend_window`` pieces, each
+    piece's ``info["mend"]`` saying how."""
+    out = []
+    for w in aligned:
+        if not w.info.get("broken"):
+            out.append(w)
+            continue
+        fix = mend_window(w, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
+                          min_frames=min_piece_frames)
+        log.info("window frames %d-%d broken (GPS rms over %.2f m): %s", *w.poses.window,
+                 limit_m, fix.how)
+        if on_broken is not None:
+            on_broken(w, fix)
+        out += [replace(p, info={**p.info, "mend": fix.how}) for p in fix.pieces]
     return out
 
 

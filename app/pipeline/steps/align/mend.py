@@ -1,0 +1,169 @@
+"""A broken window mended: one whose own alignment leaves more GPS residual than the limit
+(``place_signs.alignment_limit_m``: 5x the GPS's noise, at least 1 m), whose signs would
+otherwise all be rejected.
+
+Two faults leave that residual, and where it lies tells them apart:
+
+- **the GPS**: a run of fixes metres off (multipath by a building, a receiver's jump) between
+  fixes that one similarity follows to the GPS's noise. The reconstruction is whole; it is
+  aligned on those fixes and the run is left out (``_without_gps_run``).
+- **the reconstruction**: it bent at one frame (its scale or heading changed through a sharp
+  turn, or depth was poorly known at a slow start), and each side is a good reconstruction by
+  itself: each side is aligned on its own (``_split``), and a side that still disagrees is split
+  once more.
+
+What neither explains stays broken, and its signs are rejected with the reason. Frames: model
+(a window's reconstruction) and world (the journey's ENU, metres), as in ``window``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from app.pipeline.geometry.similarity import align_trajectory
+from app.pipeline.steps.align.window import AlignedWindow, align_window, fit_rows
+from app.pipeline.steps.ego_motion import WindowPoses
+
+# The fixes a whole reconstruction follows must be most of the window's, and follow it as a good
+# window does (<= 3.1x the GPS noise, docs/decisions/broken-window-limit.md: 0.6 of the limit).
+GPS_RUN_MIN_SHARE = 2 / 3
+GOOD_SHARE_OF_LIMIT = 0.6
+# A piece must travel this many limits: over a shorter path, a similarity follows any bend
+# and its scale is the GPS noise's.
+PIECE_MIN_EXTENT_LIMITS = 4.0
+SPLIT_DEPTH = 2
+
+
+@dataclass(frozen=True)
+class Mend:
+    """What became of a broken window: ``pieces`` replace it in the alignment (those whose
+    ``info["rms_m"]`` is still over the limit stay broken); ``how`` says it in one line."""
+
+    pieces: list[AlignedWindow]
+    how: str
+
+    @property
+    def mended(self) -> bool:
+        return any(not p.info.get("broken") for p in self.pieces)
+
+
+def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
+                xyz_check: np.ndarray | None = None, trusted: np.ndarray | None = None,
+                min_frames: int = 10) -> Mend:
+    """``window`` (its ``info["rms_m"]`` over ``limit_m``) mended where it can be.
+    ``xyz_gps`` (N, 3): the positions windows are fitted to; ``xyz_check`` (N, 3): those they are
+    judged against (the fixes as read, where ``xyz_gps`` is smoothed; default ``xyz_gps``);
+    ``trusted`` (N,) bool as in ``fit_rows``; ``min_frames``: the fewest fixes a piece is
+    aligned on."""
+    xyz_check = xyz_gps if xyz_check is None else xyz_check
+    whole = _without_gps_run(window, xyz_gps, xyz_check, limit_m, trusted, min_frames)
+    if whole is not None:
+        return whole
+    pieces = _split(window, xyz_gps, xyz_check, limit_m, trusted, min_frames, SPLIT_DEPTH)
+    if pieces is None:
+        return Mend([_judged(window, xyz_check, limit_m, trusted)], "not mended: no GPS run explains it and it is too short "
+                                       "to align in parts")
+    good = [p for p in pieces if not p.info.get("broken")]
+    parts = ", ".join(f"{p.poses.window[0]}-{p.poses.window[1] - 1} {p.info['rms_m']:.2f} m"
+                      + (" (still broken)" if p.info.get("broken") else "") for p in pieces)
+    if not good:
+        return Mend([_judged(window, xyz_check, limit_m, trusted)],
+                    f"not mended: aligned in parts it still disagrees ({parts})")
+    return Mend(pieces, f"mended: the reconstruction bent; aligned in {len(pieces)} parts "
+                        f"({parts})")
+
+
+def _without_gps_run(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
+                     limit_m: float, trusted: np.ndarray | None, min_frames: int
+                     ) -> Mend | None:
+    """The window aligned on the fixes one similarity follows, when those left out lie between
+    them (a run inside the window: at its end, a bent reconstruction looks the same)."""
+    frame_idx, T_model_cam = window.poses.frame_idx, window.poses.T_model_cam
+    rows = fit_rows(frame_idx, trusted)
+    centres = T_model_cam[:, :3, 3]
+    use = rows.copy()
+    for k in range(5):
+        try:  # started by LO-RANSAC: a plain fit is pulled off by the very run it should find
+            sim, info = align_trajectory(centres[use], xyz_gps[frame_idx[use]],
+                                         T_model_cam[use, :3, :3], R_fallback=window.sim.R,
+                                         robust_max_error_m=limit_m if k == 0 else None)
+        except ValueError:
+            return None
+        off_m = np.linalg.norm(sim.apply(centres) - xyz_check[frame_idx], axis=1)
+        now = rows & (off_m <= limit_m)
+        if now.sum() < max(min_frames, GPS_RUN_MIN_SHARE * rows.sum()):
+            return None
+        if np.array_equal(now, use):
+            break
+        use = now
+    left_out = rows & ~use
+    inside = np.flatnonzero(use)
+    rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
+    if (not left_out.any() or np.flatnonzero(left_out).min() < inside.min()
+            or np.flatnonzero(left_out).max() > inside.max()
+            or rms_m > GOOD_SHARE_OF_LIMIT * limit_m):
+        return None
+    run = frame_idx[left_out]
+    mended = AlignedWindow(window.poses, sim,
+                           {**window.info, **info, "rms_m": rms_m, "rms_broken_m":
+                            window.info["rms_m"], "gps_left_out": int(left_out.sum()),
+                            "broken": False},
+                           sim.apply_poses(T_model_cam))
+    return Mend([mended], f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at "
+                          f"{left_out.sum()} frames within {run.min()}-{run.max()}; aligned "
+                          f"without them ({rms_m:.2f} m)")
+
+
+def _piece(poses: WindowPoses, rows: slice) -> WindowPoses:
+    idx = poses.frame_idx[rows]
+    return WindowPoses((int(idx[0]), int(idx[-1]) + 1), idx, poses.T_model_cam[rows])
+
+
+def _judged(piece: AlignedWindow, xyz_check: np.ndarray, limit_m: float,
+            trusted: np.ndarray | None) -> AlignedWindow:
+    """``piece`` with its residual to the fixes as read (``info["rms_m"]``) and whether that
+    leaves it broken (``info["broken"]``)."""
+    use = fit_rows(piece.poses.frame_idx, trusted)
+    off = piece.T_world_cam[use, :3, 3] - xyz_check[piece.poses.frame_idx[use]]
+    rms_m = float(np.sqrt(np.mean(np.sum(off ** 2, axis=1))))
+    return replace(piece, info={**piece.info, "rms_m": rms_m, "broken": rms_m > limit_m})
+
+
+def _split(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray, limit_m: float,
+           trusted: np.ndarray | None, min_frames: int, depth: int
+           ) -> list[AlignedWindow] | None:
+    """The window in two pieces, cut where their own alignments leave the least residual; a
+    piece still broken is split again while ``depth`` lasts. None: no cut leaves two pieces of
+    ``min_frames`` fixes, each travelling ``PIECE_MIN_EXTENT_LIMITS`` limits."""
+    poses = window.poses
+    rows = np.flatnonzero(fit_rows(poses.frame_idx, trusted))
+    best, best_cost = None, np.inf
+    for k in range(min_frames, len(rows) - min_frames + 1):
+        cut = rows[k]
+        halves = [_piece(poses, slice(0, cut)), _piece(poses, slice(cut, None))]
+        if any(_extent_m(xyz_check[h.frame_idx]) < PIECE_MIN_EXTENT_LIMITS * limit_m
+               for h in halves):
+            continue
+        try:
+            pieces = [_judged(align_window(h, xyz_gps, trusted), xyz_check, limit_m, trusted)
+                      for h in halves]
+        except ValueError:
+            continue
+        cost = sum(len(p.poses.frame_idx) * p.info["rms_m"] ** 2 for p in pieces)
+        if cost < best_cost:
+            best, best_cost = pieces, cost
+    if best is None:
+        return None
+    out = []
+    for p in best:
+        again = (_split(p, xyz_gps, xyz_check, limit_m, trusted, min_frames, depth - 1)
+                 if p.info["broken"] and depth > 1 else None)
+        out += again or [p]
+    return out
+
+
+def _extent_m(xyz: np.ndarray) -> float:
+    """Distance (m) between the first and the last of the positions (K, 3)."""
+    return float(np.linalg.norm(xyz[-1] - xyz[0]))

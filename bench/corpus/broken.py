@@ -1,0 +1,58 @@
+"""Windows that disagreed with the GPS (``JourneyResult.broken_windows``): how many broke, were
+mended or lost, and the signs each cost or kept (issue 67's broken-window bar: on the check half
+at most 1 mappable sign in 50 lost to such a window)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.corpus.by_range import HALVES
+from bench.paper.tables import fmt, md_table
+
+LOST_REASON = "disagrees with the GPS"  # place_signs.check_reconstruction's reason
+
+
+def broken_record(result) -> list[dict]:
+    """A run's broken windows, as its corpus record keeps them."""
+    return [{"frames": [b.first_frame, b.last_frame], "rms_m": round(b.rms_m, 3),
+             "limit_m": round(b.limit_m, 3), "mended": b.mended, "how": b.how,
+             "tracks": list(b.track_ids)} for b in getattr(result, "broken_windows", [])]
+
+
+def broken_summary(records: list[dict]) -> dict:
+    """Per half: windows broken, mended, lost; mappable signs lost to a disagreeing window; signs
+    placed from a mended window and their error."""
+    out = {}
+    for half in HALVES:
+        mine = [r for r in records if r.get("half") == half and r.get("signs")]
+        windows = [w for r in mine for w in r.get("broken_windows", [])]
+        kept = [r["sign_errors"][t]["abs_m"] for r in mine
+                for w in r.get("broken_windows", []) if w["mended"]
+                for t in w["tracks"] if t in r.get("sign_errors", {})]
+        out[half] = {
+            "n_journeys": len(mine),
+            "n_broken": len(windows), "n_mended": sum(w["mended"] for w in windows),
+            "n_mappable": sum(r["signs"]["n_mappable"] for r in mine),
+            "n_lost": sum(LOST_REASON in why for r in mine
+                          for why in r.get("missed_mappable", {}).values()),
+            "n_kept": len(kept),
+            "kept_abs_median_m": float(np.median(kept)) if kept else None,
+            "journeys": sorted({r["name"] for r in mine if r.get("broken_windows")})}
+    return out
+
+
+def table_broken(summary: dict) -> str:
+    """Markdown: the broken-window counts per half, and each broken window's fate."""
+    rows = [[label, *(str(summary[h][key]) for h in HALVES)] for label, key in (
+        ("journeys with signs", "n_journeys"), ("windows broken (GPS rms over the limit)",
+                                                "n_broken"),
+        ("of them mended", "n_mended"), ("mappable signs", "n_mappable"),
+        ("mappable signs lost to a window that disagrees with the GPS", "n_lost"),
+        ("signs placed from a mended window", "n_kept"))]
+    rows.append(["their abs error median (m)",
+                 *(fmt(summary[h]["kept_abs_median_m"], 3) for h in HALVES)])
+    rows.append(["journeys", *(", ".join(summary[h]["journeys"]) or "–" for h in HALVES)])
+    return ("### Windows that disagree with the GPS\n\nA window whose own alignment lies further "
+            "from the GPS than the limit (5 x its noise, at least 1 m) is mended where a run of "
+            "bad fixes or a bend in the reconstruction explains it (`steps.align.mend`); what "
+            "is left broken loses its signs.\n\n" + md_table(["", *HALVES], rows))

@@ -1,0 +1,114 @@
+"""A broken window mended: a run of bad fixes left out, a bent reconstruction aligned in parts,
+and what is neither left broken."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from app.pipeline.geometry.similarity import Sim3
+from app.pipeline.steps import align
+from app.pipeline.steps.align.mend import mend_window
+from app.pipeline.steps.ego_motion import WindowPoses
+
+NOISE_M = 0.27
+LIMIT_M = 5 * NOISE_M
+
+
+def _road(n: int = 90) -> np.ndarray:
+    """(n, 4, 4) T_world_cam along 40 m straight, then a 90-degree left turn of 15 m radius,
+    1 m apart, cameras level and looking along the road."""
+    s = np.arange(n, dtype=float)
+    xy = np.where(s[:, None] < 40, np.column_stack([s, 0 * s]), 0)
+    a = (s - 40) / 15.0
+    turn = s >= 40
+    xy[turn] = np.column_stack([40 + 15 * np.sin(a[turn]), 15 - 15 * np.cos(a[turn])])
+    heading = np.where(turn, a, 0.0)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    z = np.column_stack([np.cos(heading), np.sin(heading), 0 * heading])
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    T[:, :3, :3] = np.stack([x, np.cross(z, x), z], axis=2)
+    T[:, :3, 3] = np.column_stack([xy, np.full(n, 1.5)])
+    return T
+
+
+def _window(T_world_cam: np.ndarray, model_from_world: Sim3) -> WindowPoses:
+    return WindowPoses((0, len(T_world_cam)), np.arange(len(T_world_cam)),
+                       model_from_world.apply_poses(T_world_cam))
+
+
+def _aligned(poses: WindowPoses, gps: np.ndarray) -> align.AlignedWindow:
+    [w] = align.align_windows([poses], gps, joint=False, max_independent_rms_m=LIMIT_M)
+    return w
+
+
+MODEL = Sim3(0.2, Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix(), np.array([5.0, -2, 1]))
+
+
+@pytest.fixture
+def truth():
+    T = _road()
+    gps = T[:, :3, 3] + np.random.default_rng(0).normal(scale=NOISE_M, size=(len(T), 3))
+    return T, gps
+
+
+def test_a_run_of_bad_fixes_is_left_out_and_the_window_kept_whole(truth):
+    T, gps = truth
+    gps = gps.copy()
+    gps[30:46, 1] += 6.0  # multipath: 16 fixes 6 m to the left, good fixes on both sides
+    window = _aligned(_window(T, MODEL), gps)
+    assert window.info["broken"] and window.info["rms_m"] > LIMIT_M
+
+    fix = mend_window(window, gps, LIMIT_M)
+    assert fix.mended and len(fix.pieces) == 1
+    assert "GPS was off" in fix.how and "30-45" in fix.how
+    [piece] = fix.pieces
+    assert piece.info["rms_m"] < 0.6 * LIMIT_M
+    # Every frame, the run's too, lies where it was: the reconstruction was whole.
+    err = np.linalg.norm(piece.T_world_cam[:, :3, 3] - T[:, :3, 3], axis=1)
+    assert err.max() < 0.25
+
+
+def test_a_bent_reconstruction_is_aligned_in_parts(truth):
+    T, gps = truth
+    poses = _window(T, MODEL)
+    # The reconstruction's scale jumps by 40 % at frame 50, in the turn.
+    bent = poses.T_model_cam.copy()
+    pivot = bent[50, :3, 3]
+    bent[50:, :3, 3] = pivot + 1.4 * (bent[50:, :3, 3] - pivot)
+    window = _aligned(WindowPoses(poses.window, poses.frame_idx, bent), gps)
+    assert window.info["broken"]
+
+    fix = mend_window(window, gps, LIMIT_M)
+    assert fix.mended and "bent" in fix.how
+    assert len(fix.pieces) == 2 and not any(p.info["broken"] for p in fix.pieces)
+    assert abs(fix.pieces[1].poses.frame_idx[0] - 50) <= 3
+    for p in fix.pieces:
+        err = np.linalg.norm(p.T_world_cam[:, :3, 3] - T[p.poses.frame_idx, :3, 3], axis=1)
+        assert np.median(err) < 0.3
+
+
+def test_a_reconstruction_that_is_noise_stays_broken(truth):
+    T, gps = truth
+    poses = _window(T, MODEL)
+    scrambled = poses.T_model_cam.copy()
+    scrambled[:, :3, 3] += np.random.default_rng(1).normal(scale=3.0, size=(len(T), 3))
+    window = _aligned(WindowPoses(poses.window, poses.frame_idx, scrambled), gps)
+
+    fix = mend_window(window, gps, LIMIT_M)
+    assert not fix.mended and fix.how.startswith("not mended")
+    assert [p.info["broken"] for p in fix.pieces] == [True]
+    assert fix.pieces[0].info["rms_m"] > LIMIT_M
+
+
+def test_align_windows_mends_and_tells(truth):
+    T, gps = truth
+    gps = gps.copy()
+    gps[30:46, 1] += 6.0
+    told = []
+    aligned = align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M,
+                                  mend_broken=True, on_broken=lambda w, fix: told.append(fix))
+    assert len(told) == 1 and told[0].mended
+    assert aligned[0].info["rms_m"] < LIMIT_M and "mend" in aligned[0].info
+    # Not asked to mend: the same window stays broken, as before.
+    [plain] = align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M)
+    assert plain.info["broken"] and plain.info["rms_m"] > LIMIT_M
