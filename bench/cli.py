@@ -92,7 +92,7 @@ def run_corpus_command(args) -> int:
                            resume=args.resume, keep_dir=args.keep_reconstructions,
                            replay_dir=args.replay, focal_scale=args.true_camera_focal_scale,
                            stored_camera=args.stored_camera, as_video=args.as_video,
-                           antenna_undeclared=args.antenna_undeclared)
+                           antenna_undeclared=args.antenna_undeclared, gps_jump=args.gps_jump)
     except (ValueError, FileNotFoundError) as exc:  # a wrong argument or corpus: say which
         raise SystemExit(f"signmap bench corpus: {exc}") from exc
     print(paths.markdown.read_text())
@@ -372,6 +372,10 @@ def _add_corpus_parser(bench_sub) -> None:
                    help="leave each bundle's gps_antenna_offset_m out of its manifest (a corpus "
                         "rendered with --antenna-offsets): the pipeline must estimate the offset, "
                         "and the records compare its estimate with the true one")
+    c.add_argument("--gps-jump", action="store_true",
+                   help="move a run of each journey's GPS fixes 4-10 m off for 1.5-3 s, drawn "
+                        "from its name (multipath by a building): the window around it disagrees "
+                        "with the GPS, and the records say whether it was mended")
     c.add_argument("--set", type=parse_knob, action="append", metavar="KNOB=VALUE",
                    help="override a PipelineConfig knob (repeatable)")
     c.add_argument("--tag", default="", help="appended to the output names: <date>-corpus-<tag>")

@@ -4,12 +4,19 @@ at most 1 mappable sign in 50 lost to such a window)."""
 
 from __future__ import annotations
 
+import csv
+import hashlib
+import io
+import zipfile
+from pathlib import Path
+
 import numpy as np
 
 from bench.corpus.by_range import HALVES
 from bench.paper.tables import fmt, md_table
 
 LOST_REASON = "disagrees with the GPS"  # place_signs.check_reconstruction's reason
+EARTH_M_PER_DEG = 111_320.0  # a degree of latitude; metres of a few-metre jump need no better
 
 
 def broken_record(result) -> list[dict]:
@@ -56,3 +63,44 @@ def table_broken(summary: dict) -> str:
             "from the GPS than the limit (5 x its noise, at least 1 m) is mended where a run of "
             "bad fixes or a bend in the reconstruction explains it (`steps.align.mend`); what "
             "is left broken loses its signs.\n\n" + md_table(["", *HALVES], rows))
+
+
+def gps_jump_of(name: str) -> dict:
+    """The multipath jump a journey's GPS gets with ``--gps-jump``, drawn from its name (every
+    run and machine the same): a run of 1.5-3 s starting 30-60 % of the way through its fixes,
+    4-10 m off in one horizontal direction, as fixes are by a tall building's reflection."""
+    rng = np.random.default_rng(int(hashlib.sha256(name.encode()).hexdigest()[:16], 16))
+    return {"start_share": float(rng.uniform(0.3, 0.6)), "length_s": float(rng.uniform(1.5, 3.0)),
+            "offset_m": float(rng.uniform(4.0, 10.0)),
+            "bearing_deg": float(rng.uniform(0.0, 360.0))}
+
+
+def with_gps_jump(bundle: Path, out: Path, name: str) -> dict:
+    """``bundle`` copied to ``out`` with ``gps_jump_of(name)`` added to its gps.csv fixes; the
+    jump as applied (its start and the fixes it moved)."""
+    jump = gps_jump_of(name)
+    with zipfile.ZipFile(bundle) as src:
+        rows = list(csv.DictReader(io.StringIO(src.read("gps.csv").decode())))
+        t_fix = [float(r["timestamp_s"]) for r in rows if r["lat"]]
+        if len(t_fix) < 2:
+            raise ValueError(f"{bundle}: fewer than two GPS fixes to move")
+        start_s = t_fix[0] + jump["start_share"] * (t_fix[-1] - t_fix[0])
+        bearing = np.radians(jump["bearing_deg"])
+        east_m, north_m = jump["offset_m"] * np.sin(bearing), jump["offset_m"] * np.cos(bearing)
+        moved = 0
+        for r in rows:
+            if r["lat"] and start_s <= float(r["timestamp_s"]) < start_s + jump["length_s"]:
+                lat = float(r["lat"])
+                lon_m_per_deg = EARTH_M_PER_DEG * np.cos(np.radians(lat))
+                r["lat"] = f"{lat + north_m / EARTH_M_PER_DEG:.9f}"
+                r["lon"] = f"{float(r['lon']) + east_m / lon_m_per_deg:.9f}"
+                moved += 1
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=list(rows[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        with zipfile.ZipFile(out, "w") as dst:
+            for info in src.infolist():
+                dst.writestr(info, text.getvalue().encode() if info.filename == "gps.csv"
+                             else src.read(info))
+    return {**jump, "start_s": round(start_s, 3), "n_fixes_moved": moved}

@@ -578,6 +578,7 @@ def render_markdown(report: dict) -> str:
             f"{'calibration only; ' if m.get('calibrate_only') else ''}"
             f"{'as dash cam video bundles; ' if m.get('as_video') else ''}"
             f"{'antenna offsets undeclared; ' if m.get('antenna_undeclared') else ''}"
+            f"{'a run of GPS fixes moved off (--gps-jump); ' if m.get('gps_jump') else ''}"
             f"knobs set: {json.dumps(m.get('config_overrides') or {})}; "
             f"this run {fmt(m.get('wall_s'), 0)} s. {BAR_TEXT}\n\n")
     tables = (table_summary, _table_range, _table_broken, _table_antenna, table_sigma,

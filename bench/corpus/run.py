@@ -30,7 +30,7 @@ from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult, StageReport
 from bench.corpus import antenna, replay
-from bench.corpus.broken import broken_record
+from bench.corpus.broken import broken_record, with_gps_jump
 from bench.corpus import report as corpus_report
 from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
                                  mappable_ids, true_distortion_error_px, truth_id)
@@ -41,10 +41,11 @@ CORPUS_FORMAT = "signmap-corpus/1"
 HALVES = ("tuning", "check")
 # What a resumed run must share with the one it continues, or its records would mix two setups.
 RUN_IDENTITY = ("corpus", "calibrate_only", "true_camera", "config_overrides", "replay_of",
-                "true_camera_focal_scale", "stored_camera", "as_video", "antenna_undeclared")
+                "true_camera_focal_scale", "stored_camera", "as_video", "antenna_undeclared",
+                "gps_jump")
 # What a run written before a field of RUN_IDENTITY existed had instead.
 IDENTITY_BEFORE = {"true_camera_focal_scale": 1.0, "stored_camera": False, "as_video": False,
-                   "antenna_undeclared": False}
+                   "antenna_undeclared": False, "gps_jump": False}
 # A hand-set dash cam clock is seconds off GPS time; whole seconds, because an MP4's creation_time
 # holds no fraction (a fractional error would be written truncated, and the truth be wrong).
 CLOCK_ERROR_MAX_S = 5
@@ -306,7 +307,8 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
                 calibrate_only: bool, true_camera: bool = False, *,
                 keep_dir: Path | None = None, replay_dir: Path | None = None,
                 focal_scale: float = 1.0, stored_camera: bool = False,
-                as_video: bool = False, antenna_undeclared: bool = False) -> dict:
+                as_video: bool = False, antenna_undeclared: bool = False,
+                gps_jump: bool = False) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
     that sign placement is measured on every journey, those without turns included.
@@ -317,7 +319,8 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     the camera's stored calibration, as the service does, and the journey still calibrates itself.
     ``as_video``: run it as a dash cam's video bundle (``video_input``), made in the journey's
     temporary directory; ``bundle_digest`` stays the frames bundle's, the rendering both share.
-    ``antenna_undeclared``: its manifest's antenna offset left out (``without_antenna_offset``)."""
+    ``antenna_undeclared``: its manifest's antenna offset left out (``without_antenna_offset``).
+    ``gps_jump``: a run of its fixes moved metres off (``broken.with_gps_jump``)."""
     jdir = Path(corpus_dir) / entry.get("dir", entry["name"])
     truth = json.loads((jdir / "truth.json").read_text())
     digest = bundle_digest(jdir / "bundle.zip")
@@ -336,6 +339,9 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
         frames = (without_antenna_offset(jdir / "bundle.zip", Path(tmp) / "bundle.zip")
                   if antenna_undeclared else jdir / "bundle.zip")
+        jump = (with_gps_jump(frames, Path(tmp) / "jumped.zip", entry["name"])
+                if gps_jump else None)
+        frames = frames if jump is None else Path(tmp) / "jumped.zip"
         video = video_input(entry["name"], frames, Path(tmp)) if as_video else None
         bundle = frames if video is None else video.bundle
         if video is not None and bundle is None:
@@ -348,6 +354,8 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
             out = _run(task)
     record = journey_record(entry, out, truth, calibrate_only=calibrate_only, digest=digest)
     record |= antenna.estimate_fields(stage_reports(out))
+    if jump is not None:
+        record["gps_jump"] = jump
     return record if video is None else {**record, **video_fields(video, out)}
 
 
@@ -425,7 +433,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
                tag: str = "", resume: bool = False, keep_dir: Path | None = None,
                replay_dir: Path | None = None, focal_scale: float = 1.0,
                stored_camera: bool = False, as_video: bool = False,
-               antenna_undeclared: bool = False) -> CorpusPaths:
+               antenna_undeclared: bool = False, gps_jump: bool = False) -> CorpusPaths:
     """Run the selected journeys of the corpus in ``corpus_dir``; write ``<date>-corpus<tag>``
     .jsonl (records), .md, .json and .png into ``out_dir``. ``keep_dir`` / ``replay_dir``: keep
     each journey's reconstruction there, or only georeference those kept there
@@ -451,7 +459,8 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
             "generator_version": index.get("generator_version"), "calibrate_only": calibrate_only,
             "true_camera": true_camera, "true_camera_focal_scale": focal_scale,
             "stored_camera": stored_camera, "as_video": as_video,
-            "antenna_undeclared": antenna_undeclared, "config_overrides": overrides, "tag": tag,
+            "antenna_undeclared": antenna_undeclared, "gps_jump": gps_jump,
+            "config_overrides": overrides, "tag": tag,
             "replay_of": None if replay_dir is None else str(Path(replay_dir).resolve())}
     meta.pop("quick", None)
     old_meta, records = read_jsonl(jsonl) if resume and jsonl.exists() else (None, [])
@@ -476,7 +485,7 @@ def run_corpus(corpus_dir: Path, out_dir: Path, *, half: str | None = None,
         record = run_journey(corpus_dir, entry, config, calibrate_only, true_camera,
                              keep_dir=keep_dir, replay_dir=replay_dir, focal_scale=focal_scale,
                              stored_camera=stored_camera, as_video=as_video,
-                             antenna_undeclared=antenna_undeclared)
+                             antenna_undeclared=antenna_undeclared, gps_jump=gps_jump)
         _append(jsonl, record)
         records.append(record)
         log(f"[{i}/{len(todo)}] {entry['name']}: {record['status']} in {record['wall_s']:.0f} s"
