@@ -29,7 +29,7 @@ from app.pipeline.types import PipelineError
 GEOREF_KNOBS = frozenset({
     "alignment", "short_alignment_min_frames", "short_alignment_margin_frames",
     "local_alignment_weight", "alignment_joint",
-    "alignment_unlink_broken", "gps_dropout_gap_factor",
+    "alignment_unlink_broken", "alignment_mend_broken", "gps_dropout_gap_factor",
     "max_reprojection_rms_px", "min_inlier_share", "max_sign_std_m", "min_ray_angle_deg",
     "max_alignment_rms_gps_ratio", "min_alignment_rms_reject_m", "merge_fragments_within_m",
     "sign_georef_floor_m", "sign_georef_noise_gain", "sign_georef_bias_quad_per_m",

@@ -112,3 +112,35 @@ def test_align_windows_mends_and_tells(truth):
     # Not asked to mend: the same window stays broken, as before.
     [plain] = align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M)
     assert plain.info["broken"] and plain.info["rms_m"] > LIMIT_M
+
+
+def test_a_run_at_the_windows_start_is_left_out_when_a_neighbour_vouches(truth):
+    T, clean = truth
+    gps = clean.copy()
+    gps[45:55, 1] += 5.0  # a run at the start of the second window, the end of the first
+    second = _aligned(WindowPoses((45, 80), np.arange(45, 80), MODEL.apply_poses(T[45:80])), gps)
+    assert second.info["broken"]
+    # The first window, aligned where its fixes were good, poses the run's first frames.
+    first = _aligned(WindowPoses((0, 48), np.arange(48), MODEL.apply_poses(T[:48])), clean)
+
+    fix = mend_window(second, gps, LIMIT_M, neighbours=[first])
+    assert fix.mended and "neighbouring window agrees" in fix.how and "45-54" in fix.how
+    err = np.linalg.norm(fix.pieces[0].T_world_cam[:, :3, 3] - T[45:80, :3, 3], axis=1)
+    assert err.max() < 0.5  # 25 fixes of 0.27 m noise hold the run's end, extrapolated, so far
+
+
+def test_a_piece_that_follows_bad_fixes_away_from_its_neighbour_stays_broken(truth):
+    T, clean = truth
+    gps = clean.copy()
+    gps[45:55, 1] += 5.0
+    second = _aligned(WindowPoses((45, 80), np.arange(45, 80), MODEL.apply_poses(T[45:80])), gps)
+    # A neighbour pulled ~1.5 m at its end by the same run cannot vouch for it; split, the
+    # run's ten frames would follow the bad fixes, 5 m from where the neighbour poses them.
+    first = _aligned(WindowPoses((0, 48), np.arange(48), MODEL.apply_poses(T[:48])), gps)
+
+    fix = mend_window(second, gps, LIMIT_M, neighbours=[first])
+    assert "GPS was off" not in fix.how
+    for p in fix.pieces:
+        err = np.linalg.norm(p.T_world_cam[:, :3, 3] - T[p.poses.frame_idx, :3, 3], axis=1)
+        assert p.info["broken"] or err.max() < 0.5, (p.poses.window, err.max())
+    assert fix.mended  # what follows the run is kept

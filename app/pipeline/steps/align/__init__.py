@@ -117,13 +117,14 @@ def _mended(aligned: list[AlignedWindow], xyz_gps: np.ndarray, limit_m: float,
             on_broken: Callable[[AlignedWindow, Mend], None] | None) -> list[AlignedWindow]:
     """``aligned`` with each broken window replaced by its ``mend.mend_window`` pieces, each
     piece's ``info["mend"]`` saying how."""
+    good = [w for w in aligned if not w.info.get("broken")]
     out = []
     for w in aligned:
         if not w.info.get("broken"):
             out.append(w)
             continue
         fix = mend_window(w, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
-                          min_frames=min_piece_frames)
+                          min_frames=min_piece_frames, neighbours=good)
         log.info("window frames %d-%d broken (GPS rms over %.2f m): %s", *w.poses.window,
                  limit_m, fix.how)
         if on_broken is not None:

@@ -5,8 +5,9 @@ otherwise all be rejected.
 Two faults leave that residual, and where it lies tells them apart:
 
 - **the GPS**: a run of fixes metres off (multipath by a building, a receiver's jump) between
-  fixes that one similarity follows to the GPS's noise. The reconstruction is whole; it is
-  aligned on those fixes and the run is left out (``_without_gps_run``).
+  fixes that one similarity follows to the GPS's noise, or at the window's end where a good
+  neighbouring window poses those frames as that similarity does. The reconstruction is whole;
+  it is aligned on those fixes and the run is left out (``_without_gps_run``).
 - **the reconstruction**: it bent at one frame (its scale or heading changed through a sharp
   turn, or depth was poorly known at a slow start), and each side is a good reconstruction by
   itself: each side is aligned on its own (``_split``), and a side that still disagrees is split
@@ -19,6 +20,7 @@ What neither explains stays broken, and its signs are rejected with the reason. 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Sequence
 
 import numpy as np
 
@@ -51,20 +53,22 @@ class Mend:
 
 def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
                 xyz_check: np.ndarray | None = None, trusted: np.ndarray | None = None,
-                min_frames: int = 10) -> Mend:
+                min_frames: int = 10, neighbours: Sequence[AlignedWindow] = ()) -> Mend:
     """``window`` (its ``info["rms_m"]`` over ``limit_m``) mended where it can be.
     ``xyz_gps`` (N, 3): the positions windows are fitted to; ``xyz_check`` (N, 3): those they are
     judged against (the fixes as read, where ``xyz_gps`` is smoothed; default ``xyz_gps``);
     ``trusted`` (N,) bool as in ``fit_rows``; ``min_frames``: the fewest fixes a piece is
-    aligned on."""
+    aligned on; ``neighbours``: the windows that are not broken, which may vouch for it."""
     xyz_check = xyz_gps if xyz_check is None else xyz_check
-    whole = _without_gps_run(window, xyz_gps, xyz_check, limit_m, trusted, min_frames)
+    whole = _without_gps_run(window, xyz_gps, xyz_check, limit_m, trusted, min_frames,
+                             list(neighbours))
     if whole is not None:
         return whole
-    pieces = _split(window, xyz_gps, xyz_check, limit_m, trusted, min_frames, SPLIT_DEPTH)
+    pieces = _split(window, xyz_gps, xyz_check, limit_m, trusted, min_frames, SPLIT_DEPTH,
+                    list(neighbours))
     if pieces is None:
-        return Mend([_judged(window, xyz_check, limit_m, trusted)], "not mended: no GPS run explains it and it is too short "
-                                       "to align in parts")
+        return Mend([_judged(window, xyz_check, limit_m, trusted)],
+                    "not mended: no GPS run explains it and it is too short to align in parts")
     good = [p for p in pieces if not p.info.get("broken")]
     parts = ", ".join(f"{p.poses.window[0]}-{p.poses.window[1] - 1} {p.info['rms_m']:.2f} m"
                       + (" (still broken)" if p.info.get("broken") else "") for p in pieces)
@@ -76,10 +80,10 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
 
 
 def _without_gps_run(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
-                     limit_m: float, trusted: np.ndarray | None, min_frames: int
-                     ) -> Mend | None:
+                     limit_m: float, trusted: np.ndarray | None, min_frames: int,
+                     neighbours: list[AlignedWindow]) -> Mend | None:
     """The window aligned on the fixes one similarity follows, when those left out lie between
-    them (a run inside the window: at its end, a bent reconstruction looks the same)."""
+    them, or a good neighbour poses them where this alignment does."""
     frame_idx, T_model_cam = window.poses.frame_idx, window.poses.T_model_cam
     rows = fit_rows(frame_idx, trusted)
     centres = T_model_cam[:, :3, 3]
@@ -101,19 +105,36 @@ def _without_gps_run(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.n
     left_out = rows & ~use
     inside = np.flatnonzero(use)
     rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
-    if (not left_out.any() or np.flatnonzero(left_out).min() < inside.min()
-            or np.flatnonzero(left_out).max() > inside.max()
-            or rms_m > GOOD_SHARE_OF_LIMIT * limit_m):
+    if not left_out.any() or rms_m > GOOD_SHARE_OF_LIMIT * limit_m:
+        return None
+    T_world_cam = sim.apply_poses(T_model_cam)
+    bracketed = inside.min() < np.flatnonzero(left_out).min() <= np.flatnonzero(
+        left_out).max() < inside.max()
+    # At the window's end a bent reconstruction looks the same; a good neighbour that poses
+    # those frames where this alignment puts them says the reconstruction held.
+    gap_m = _disagreement_m(frame_idx[left_out], T_world_cam[left_out], neighbours)
+    vouched = not bracketed and gap_m is not None and gap_m <= limit_m
+    if not (bracketed or vouched):
         return None
     run = frame_idx[left_out]
     mended = AlignedWindow(window.poses, sim,
                            {**window.info, **info, "rms_m": rms_m, "rms_broken_m":
                             window.info["rms_m"], "gps_left_out": int(left_out.sum()),
-                            "broken": False},
-                           sim.apply_poses(T_model_cam))
+                            "broken": False}, T_world_cam)
     return Mend([mended], f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at "
-                          f"{left_out.sum()} frames within {run.min()}-{run.max()}; aligned "
+                          f"{left_out.sum()} frames within {run.min()}-{run.max()}"
+                          f"{' (a neighbouring window agrees)' if vouched else ''}; aligned "
                           f"without them ({rms_m:.2f} m)")
+
+
+def _disagreement_m(frame_idx: np.ndarray, T_world_cam: np.ndarray,
+                    neighbours: list[AlignedWindow]) -> float | None:
+    """The largest distance (m) between a centre of ``T_world_cam`` (K, 4, 4), posing frames
+    ``frame_idx`` (K,), and the same frame's centre in ``neighbours``; None: they share none."""
+    gaps = [np.linalg.norm(w.T_world_cam[w.poses.frame_idx == f, :3, 3] - T[:3, 3], axis=1)
+            for w in neighbours for f, T in zip(frame_idx, T_world_cam)
+            if (w.poses.frame_idx == f).any()]
+    return float(np.max(np.concatenate(gaps))) if gaps else None
 
 
 def _piece(poses: WindowPoses, rows: slice) -> WindowPoses:
@@ -122,18 +143,23 @@ def _piece(poses: WindowPoses, rows: slice) -> WindowPoses:
 
 
 def _judged(piece: AlignedWindow, xyz_check: np.ndarray, limit_m: float,
-            trusted: np.ndarray | None) -> AlignedWindow:
-    """``piece`` with its residual to the fixes as read (``info["rms_m"]``) and whether that
-    leaves it broken (``info["broken"]``)."""
+            trusted: np.ndarray | None, neighbours: Sequence[AlignedWindow] = ()
+            ) -> AlignedWindow:
+    """``piece`` with its residual to the fixes as read (``info["rms_m"]``) and whether it is
+    broken (``info["broken"]``): that residual over the limit, or its frames posed more than the
+    limit away from where a good neighbour poses them (a short piece follows a run of bad
+    fixes at a window's end as well as it follows good ones)."""
     use = fit_rows(piece.poses.frame_idx, trusted)
     off = piece.T_world_cam[use, :3, 3] - xyz_check[piece.poses.frame_idx[use]]
     rms_m = float(np.sqrt(np.mean(np.sum(off ** 2, axis=1))))
-    return replace(piece, info={**piece.info, "rms_m": rms_m, "broken": rms_m > limit_m})
+    gap_m = _disagreement_m(piece.poses.frame_idx, piece.T_world_cam, list(neighbours))
+    return replace(piece, info={**piece.info, "rms_m": rms_m, "broken": rms_m > limit_m
+                                or (gap_m is not None and gap_m > limit_m)})
 
 
 def _split(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray, limit_m: float,
-           trusted: np.ndarray | None, min_frames: int, depth: int
-           ) -> list[AlignedWindow] | None:
+           trusted: np.ndarray | None, min_frames: int, depth: int,
+           neighbours: list[AlignedWindow]) -> list[AlignedWindow] | None:
     """The window in two pieces, cut where their own alignments leave the least residual; a
     piece still broken is split again while ``depth`` lasts. None: no cut leaves two pieces of
     ``min_frames`` fixes, each travelling ``PIECE_MIN_EXTENT_LIMITS`` limits."""
@@ -147,8 +173,8 @@ def _split(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray, li
                for h in halves):
             continue
         try:
-            pieces = [_judged(align_window(h, xyz_gps, trusted), xyz_check, limit_m, trusted)
-                      for h in halves]
+            pieces = [_judged(align_window(h, xyz_gps, trusted), xyz_check, limit_m, trusted,
+                              neighbours) for h in halves]
         except ValueError:
             continue
         cost = sum(len(p.poses.frame_idx) * p.info["rms_m"] ** 2 for p in pieces)
@@ -158,7 +184,8 @@ def _split(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray, li
         return None
     out = []
     for p in best:
-        again = (_split(p, xyz_gps, xyz_check, limit_m, trusted, min_frames, depth - 1)
+        again = (_split(p, xyz_gps, xyz_check, limit_m, trusted, min_frames, depth - 1,
+                        neighbours)
                  if p.info["broken"] and depth > 1 else None)
         out += again or [p]
     return out
