@@ -75,10 +75,9 @@ def gps_jump_of(name: str) -> dict:
             "bearing_deg": float(rng.uniform(0.0, 360.0))}
 
 
-def with_gps_jump(bundle: Path, out: Path, name: str) -> dict:
-    """``bundle`` copied to ``out`` with ``gps_jump_of(name)`` added to its gps.csv fixes; the
-    jump as applied (its start and the fixes it moved)."""
-    jump = gps_jump_of(name)
+def with_gps_jump(bundle: Path, out: Path, jump: dict) -> dict:
+    """``bundle`` copied to ``out`` with ``jump`` (as ``gps_jump_of`` draws it) added to its
+    gps.csv fixes; the jump as applied (its start and the fixes it moved)."""
     with zipfile.ZipFile(bundle) as src:
         rows = list(csv.DictReader(io.StringIO(src.read("gps.csv").decode())))
         t_fix = [float(r["timestamp_s"]) for r in rows if r["lat"]]

@@ -30,7 +30,7 @@ from app.pipeline.bundle.associate import box_iou
 from app.pipeline.config import PipelineConfig
 from app.pipeline.types import CameraModel, JourneyResult, StageReport
 from bench.corpus import antenna, replay
-from bench.corpus.broken import broken_record, with_gps_jump
+from bench.corpus.broken import broken_record, gps_jump_of, with_gps_jump
 from bench.corpus import report as corpus_report
 from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
                                  mappable_ids, true_distortion_error_px, truth_id)
@@ -339,7 +339,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     with tempfile.TemporaryDirectory(prefix=f"bench-corpus-{entry['name']}-") as tmp:
         frames = (without_antenna_offset(jdir / "bundle.zip", Path(tmp) / "bundle.zip")
                   if antenna_undeclared else jdir / "bundle.zip")
-        jump = (with_gps_jump(frames, Path(tmp) / "jumped.zip", entry["name"])
+        jump = (with_gps_jump(frames, Path(tmp) / "jumped.zip", gps_jump_of(entry["name"]))
                 if gps_jump else None)
         frames = frames if jump is None else Path(tmp) / "jumped.zip"
         video = video_input(entry["name"], frames, Path(tmp)) if as_video else None
