@@ -144,3 +144,14 @@ def test_a_piece_that_follows_bad_fixes_away_from_its_neighbour_stays_broken(tru
         err = np.linalg.norm(p.T_world_cam[:, :3, 3] - T[p.poses.frame_idx, :3, 3], axis=1)
         assert p.info["broken"] or err.max() < 0.5, (p.poses.window, err.max())
     assert fix.mended  # what follows the run is kept
+
+
+def test_a_broken_window_is_told_even_when_mending_is_off(truth):
+    T, gps = truth
+    gps = gps.copy()
+    gps[30:46, 1] += 6.0
+    told = []
+    align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M,
+                        on_broken=lambda w, fix: told.append((w.info["rms_m"], fix)))
+    [(rms_m, fix)] = told
+    assert rms_m > LIMIT_M and not fix.mended and "off" in fix.how

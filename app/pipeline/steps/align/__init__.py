@@ -77,12 +77,8 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     if max_independent_rms_m is not None:
         checked = (aligned if xyz_check is None else
                    _with_residuals_to(aligned, xyz_check, trusted))
-        aligned = [replace(w, info={**w.info, "broken": True})
-                   if c.info["rms_m"] > max_independent_rms_m else w
-                   for w, c in zip(aligned, checked)]
-        if mend_broken:
-            aligned = _mended(aligned, xyz_gps, max_independent_rms_m, xyz_check, trusted,
-                              min_piece_frames, on_broken)
+        aligned = _mended(aligned, checked, xyz_gps, max_independent_rms_m, xyz_check, trusted,
+                          min_piece_frames, on_broken, mend=mend_broken)
     if joint:
         linkable = [not w.info.get("broken") and "mend" not in w.info for w in aligned]
         for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
@@ -112,24 +108,30 @@ def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray,
     return out
 
 
-def _mended(aligned: list[AlignedWindow], xyz_gps: np.ndarray, limit_m: float,
-            xyz_check: np.ndarray | None, trusted: np.ndarray | None, min_piece_frames: int,
-            on_broken: Callable[[AlignedWindow, Mend], None] | None) -> list[AlignedWindow]:
-    """``aligned`` with each broken window replaced by its ``mend.mend_window`` pieces, each
-    piece's ``info["mend"]`` saying how."""
-    good = [w for w in aligned if not w.info.get("broken")]
+def _mended(aligned: list[AlignedWindow], checked: list[AlignedWindow], xyz_gps: np.ndarray,
+            limit_m: float, xyz_check: np.ndarray | None, trusted: np.ndarray | None,
+            min_piece_frames: int, on_broken: Callable[[AlignedWindow, Mend], None] | None, *,
+            mend: bool) -> list[AlignedWindow]:
+    """``aligned`` with each broken window (``checked``: the same windows, their residuals to
+    ``xyz_check``, over ``limit_m``) marked ``info["broken"]``, and with ``mend`` replaced by its
+    ``mend.mend_window`` pieces, each piece's ``info["mend"]`` saying how. ``on_broken`` hears
+    of every broken window, mended or not."""
+    good = [w for w, c in zip(aligned, checked) if c.info["rms_m"] <= limit_m]
     out = []
-    for w in aligned:
-        if not w.info.get("broken"):
+    for w, c in zip(aligned, checked):
+        if c.info["rms_m"] <= limit_m:
             out.append(w)
             continue
-        fix = mend_window(w, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
-                          min_frames=min_piece_frames, neighbours=good)
-        log.info("window frames %d-%d broken (GPS rms over %.2f m): %s", *w.poses.window,
-                 limit_m, fix.how)
+        fix = (mend_window(c, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
+                           min_frames=min_piece_frames, neighbours=good) if mend else
+               Mend([replace(c, info={**c.info, "broken": True})],
+                    "not mended (alignment_mend_broken is off)"))
+        log.info("window frames %d-%d broken (GPS rms %.2f m, over %.2f m): %s", *c.poses.window,
+                 c.info["rms_m"], limit_m, fix.how)
         if on_broken is not None:
-            on_broken(w, fix)
-        out += [replace(p, info={**p.info, "mend": fix.how}) for p in fix.pieces]
+            on_broken(c, fix)
+        out += ([replace(p, info={**p.info, "mend": fix.how}) for p in fix.pieces] if mend
+                else [replace(w, info={**w.info, "broken": True})])
     return out
 
 
