@@ -155,3 +155,15 @@ def test_a_broken_window_is_told_even_when_mending_is_off(truth):
                         on_broken=lambda w, fix: told.append((w.info["rms_m"], fix)))
     [(rms_m, fix)] = told
     assert rms_m > LIMIT_M and not fix.mended and "off" in fix.how
+
+
+def test_a_split_that_would_follow_bad_fixes_leaves_the_path_jumping_and_is_refused(truth):
+    T, gps = truth
+    gps = gps.copy()
+    gps[40:, 1] += 6.0  # the window's last 50 fixes off: more than the good ones
+    window = _aligned(_window(T, MODEL), gps)
+    assert window.info["broken"]
+
+    fix = mend_window(window, gps, LIMIT_M)
+    # Either side alone follows its fixes, but the two do not meet: nothing is kept.
+    assert not fix.mended, fix.how

@@ -11,7 +11,8 @@ Two faults leave that residual, and where it lies tells them apart:
 - **the reconstruction**: it bent at one frame (its scale or heading changed through a sharp
   turn, or depth was poorly known at a slow start), and each side is a good reconstruction by
   itself: each side is aligned on its own (``_split``), and a side that still disagrees is split
-  once more.
+  once more. The sides must meet where they were cut: a bend leaves the path whole, a side that
+  followed bad fixes leaves it jumping (``_continuous``).
 
 What neither explains stays broken, and its signs are rejected with the reason. Frames: model
 (a window's reconstruction) and world (the journey's ENU, metres), as in ``window``.
@@ -71,7 +72,9 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
                     "not mended: no GPS run explains it and it is too short to align in parts")
     good = [p for p in pieces if not p.info.get("broken")]
     parts = ", ".join(f"{p.poses.window[0]}-{p.poses.window[1] - 1} {p.info['rms_m']:.2f} m"
-                      + (" (still broken)" if p.info.get("broken") else "") for p in pieces)
+                      + (f" (the path jumps {p.info['cut_jump_m']:.1f} m where it was cut)"
+                         if "cut_jump_m" in p.info else
+                         " (still broken)" if p.info.get("broken") else "") for p in pieces)
     if not good:
         return Mend([_judged(window, xyz_check, limit_m, trusted)],
                     f"not mended: aligned in parts it still disagrees ({parts})")
@@ -188,7 +191,40 @@ def _split(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray, li
                         neighbours)
                  if p.info["broken"] and depth > 1 else None)
         out += again or [p]
-    return out
+    return _continuous(out, limit_m, neighbours) if depth == SPLIT_DEPTH else out
+
+
+def _continuous(pieces: list[AlignedWindow], limit_m: float,
+                neighbours: list[AlignedWindow]) -> list[AlignedWindow]:
+    """``pieces`` (in frame order) with both sides of a cut marked broken where the path jumps
+    there by more than ``limit_m`` beyond the step the pieces' speeds make, unless a good
+    neighbour poses a side where it lies. A reconstruction that bent keeps the path whole once
+    each side is aligned; a side that followed a run of bad fixes does not, and which side did
+    cannot be told from the window alone."""
+    broken = [bool(p.info.get("broken")) for p in pieces]
+    jumps: dict[int, float] = {}
+    for k, (a, b) in enumerate(zip(pieces, pieces[1:])):
+        if broken[k] or broken[k + 1]:
+            continue
+        gap_m = np.linalg.norm(b.T_world_cam[0, :3, 3] - a.T_world_cam[-1, :3, 3])
+        frames = b.poses.frame_idx[0] - a.poses.frame_idx[-1]
+        step_m = frames * np.mean([_speed_m_per_frame(a, -1), _speed_m_per_frame(b, 0)])
+        if abs(gap_m - step_m) > limit_m:
+            for j, p in ((k, a), (k + 1, b)):
+                vouch = _disagreement_m(p.poses.frame_idx, p.T_world_cam, neighbours)
+                broken[j] = vouch is None or vouch > limit_m
+                jumps[j] = max(jumps.get(j, 0.0), float(abs(gap_m - step_m)))
+    return [replace(p, info={**p.info, "broken": True, "cut_jump_m": jumps[j]})
+            if b and not p.info.get("broken") else p
+            for j, (p, b) in enumerate(zip(pieces, broken))]
+
+
+def _speed_m_per_frame(piece: AlignedWindow, end: int) -> float:
+    """Distance per journey frame (m) of the piece's step at its start (``end`` 0) or its end
+    (-1)."""
+    rows = [0, 1] if end == 0 else [-2, -1]
+    T, f = piece.T_world_cam[rows], piece.poses.frame_idx[rows]
+    return float(np.linalg.norm(T[1, :3, 3] - T[0, :3, 3]) / max(f[1] - f[0], 1))
 
 
 def _extent_m(xyz: np.ndarray) -> float:
