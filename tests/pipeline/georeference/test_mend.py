@@ -79,7 +79,7 @@ def test_a_bent_reconstruction_is_aligned_in_parts(truth):
     assert window.info["broken"]
 
     fix = mend_window(window, gps, LIMIT_M)
-    assert fix.mended and "bent" in fix.how
+    assert fix.mended and "aligned in 2 parts" in fix.how
     assert len(fix.pieces) == 2 and not any(p.info["broken"] for p in fix.pieces)
     assert abs(fix.pieces[1].poses.frame_idx[0] - 50) <= 3
     for p in fix.pieces:

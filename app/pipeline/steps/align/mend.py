@@ -78,8 +78,8 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
     if not good:
         return Mend([_judged(window, xyz_check, limit_m, trusted)],
                     f"not mended: aligned in parts it still disagrees ({parts})")
-    return Mend(pieces, f"mended: the reconstruction bent; aligned in {len(pieces)} parts "
-                        f"({parts})")
+    # A bend, or bad fixes in a part left broken: the window alone cannot tell which.
+    return Mend(pieces, f"mended: aligned in {len(pieces)} parts, each on its own ({parts})")
 
 
 def _without_gps_run(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
