@@ -78,6 +78,7 @@ def test_an_undeclared_offset_is_estimated_and_compared_with_the_rendered_one(tm
     text = paths.markdown.read_text()
     assert "GPS antenna offset, undeclared" in text and "| c0000 | tuning | -1.09 +0.25 |" in text
     assert "Relative error against range" in text and "antenna offsets undeclared" in text
+    assert "Windows that disagree with the GPS" in text and record["broken_windows"] == []
     # The corpus's own bundle keeps its declaration: only the bench's copy went without.
     manifest = json.loads(zipfile.ZipFile(corpus / "c0000" / "bundle.zip").read("manifest.json"))
     assert manifest["gps_antenna_offset_m"]["forward"] == KITTI_OFFSET[0]
