@@ -8,7 +8,9 @@ synthetic journeys, whose bias stays correlated over ~40-60 frames); frames insi
 ``ego_motion.plan_windows``) jointly: they must agree on those frames, so a whole chain averages
 the bias over its length. A short stretch of
 straight road leaves the roll about the road undetermined by positions;
-``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it.
+``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it. A
+window whose own alignment lies further from the GPS than the broken-reconstruction limit is
+mended where a run of bad fixes or a bend explains it (``mend``), else its signs are refused.
 
 ``track_poses`` gives a sign its frames' poses: ``full`` from its chain; ``short`` (the paper's
 best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign
@@ -26,8 +28,8 @@ import numpy as np
 from app.pipeline.steps.align.joint import JointSigmas, align_group
 from app.pipeline.steps.align.mend import Mend, mend_window
 from app.pipeline.steps.align.track_poses import TrackPoses, track_poses
-from app.pipeline.steps.align.window import (AlignedWindow, centre_rms_m, shared_rows,
-                                             align_window, fit_rows)
+from app.pipeline.steps.align.window import (AlignedWindow, align_window, centre_rms_m,
+                                             fit_rows, shared_rows)
 from app.pipeline.steps.ego_motion import WindowPoses
 from app.pipeline.types import StageReport
 
