@@ -149,14 +149,17 @@ def _judged(piece: AlignedWindow, xyz_check: np.ndarray, limit_m: float,
             trusted: np.ndarray | None, neighbours: Sequence[AlignedWindow] = ()
             ) -> AlignedWindow:
     """``piece`` with its residual to the fixes as read (``info["rms_m"]``) and whether it is
-    broken (``info["broken"]``): that residual over the limit, or its frames posed more than the
-    limit away from where a good neighbour poses them (a short piece follows a run of bad
-    fixes at a window's end as well as it follows good ones)."""
+    broken (``info["broken"]``): that residual more than a good window's (``GOOD_SHARE_OF_LIMIT``
+    of the limit: a piece fits fewer fixes, and a reconstruction wrong within it still follows
+    them to 4x their noise), or its frames posed more than the limit away from where a good
+    neighbour poses them (a short piece follows a run of bad fixes at a window's end as well as
+    it follows good ones)."""
     use = fit_rows(piece.poses.frame_idx, trusted)
     off = piece.T_world_cam[use, :3, 3] - xyz_check[piece.poses.frame_idx[use]]
     rms_m = float(np.sqrt(np.mean(np.sum(off ** 2, axis=1))))
     gap_m = _disagreement_m(piece.poses.frame_idx, piece.T_world_cam, list(neighbours))
-    return replace(piece, info={**piece.info, "rms_m": rms_m, "broken": rms_m > limit_m
+    return replace(piece, info={**piece.info, "rms_m": rms_m,
+                                "broken": rms_m > GOOD_SHARE_OF_LIMIT * limit_m
                                 or (gap_m is not None and gap_m > limit_m)})
 
 
