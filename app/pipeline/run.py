@@ -453,7 +453,7 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                 f"frames {p.window[0]}-{p.window[1] - 1} dropped: {why}"),
             xyz_check=xyz_gps if config.gps_smoothing else None, trusted=trusted,
             mend_broken=config.alignment_mend_broken, on_broken=on_broken,
-            min_piece_frames=config.short_alignment_min_frames)
+            min_fixes=config.short_alignment_min_frames)
         entry.take(align.report(len(poses), aligned,
                                 list(recon.gps_notes) + untrusted + notes))
         if not aligned:

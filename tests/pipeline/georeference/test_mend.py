@@ -1,5 +1,5 @@
-"""A broken window mended: a run of bad fixes left out, a bent reconstruction aligned in parts,
-and what is neither left broken."""
+"""A broken window mended: a run of bad fixes left out; a bent end cut off, not followed; a
+reconstruction that broke left broken."""
 
 import numpy as np
 import pytest
@@ -59,45 +59,58 @@ def test_a_run_of_bad_fixes_is_left_out_and_the_window_kept_whole(truth):
     assert window.info["broken"] and window.info["rms_m"] > LIMIT_M
 
     fix = mend_window(window, gps, LIMIT_M)
-    assert fix.mended and len(fix.pieces) == 1
-    assert "GPS was off" in fix.how and "30-45" in fix.how
-    [piece] = fix.pieces
-    assert piece.info["rms_m"] < 0.6 * LIMIT_M
+    assert fix.mended and "GPS was off" in fix.how and "within 30-45" in fix.how
+    assert fix.window.info["rms_m"] < 0.6 * LIMIT_M
     # Every frame, the run's too, lies where it was: the reconstruction was whole.
-    err = np.linalg.norm(piece.T_world_cam[:, :3, 3] - T[:, :3, 3], axis=1)
+    np.testing.assert_array_equal(fix.window.poses.frame_idx, np.arange(90))
+    err = np.linalg.norm(fix.window.T_world_cam[:, :3, 3] - T[:, :3, 3], axis=1)
     assert err.max() < 0.25
 
 
-def test_a_bent_reconstruction_is_aligned_in_parts(truth):
-    T, gps = truth
+def _bent(T: np.ndarray, at: int, scale: float) -> WindowPoses:
+    """The road's reconstruction whose scale changes by ``scale`` from frame ``at`` on."""
     poses = _window(T, MODEL)
-    # The reconstruction's scale jumps by 40 % at frame 50, in the turn.
     bent = poses.T_model_cam.copy()
-    pivot = bent[50, :3, 3]
-    bent[50:, :3, 3] = pivot + 1.4 * (bent[50:, :3, 3] - pivot)
-    window = _aligned(WindowPoses(poses.window, poses.frame_idx, bent), gps)
+    pivot = bent[at, :3, 3]
+    bent[at:, :3, 3] = pivot + scale * (bent[at:, :3, 3] - pivot)
+    return WindowPoses(poses.window, poses.frame_idx, bent)
+
+
+def test_a_bent_end_is_cut_off_not_followed(truth):
+    T, gps = truth
+    window = _aligned(_bent(T, 65, 1.4), gps)  # the last 25 frames' scale 40 % off
     assert window.info["broken"]
 
     fix = mend_window(window, gps, LIMIT_M)
-    assert fix.mended and "aligned in 2 parts" in fix.how
-    assert len(fix.pieces) == 2 and not any(p.info["broken"] for p in fix.pieces)
-    assert abs(fix.pieces[1].poses.frame_idx[0] - 50) <= 3
-    for p in fix.pieces:
-        err = np.linalg.norm(p.T_world_cam[:, :3, 3] - T[p.poses.frame_idx, :3, 3], axis=1)
-        assert np.median(err) < 0.3
+    assert fix.mended and "left unposed" in fix.how
+    kept = fix.window.poses.frame_idx
+    assert kept[0] == 0 and 60 <= kept[-1] < 70
+    err = np.linalg.norm(fix.window.T_world_cam[:, :3, 3] - T[kept, :3, 3], axis=1)
+    assert np.median(err) < 0.2 and err.max() < 0.6  # the bend's first frames lie within it
 
 
-def test_a_reconstruction_that_is_noise_stays_broken(truth):
+@pytest.mark.parametrize("bent", [True, False])
+def test_what_no_similarity_follows_for_two_thirds_stays_broken(truth, bent):
     T, gps = truth
-    poses = _window(T, MODEL)
-    scrambled = poses.T_model_cam.copy()
-    scrambled[:, :3, 3] += np.random.default_rng(1).normal(scale=3.0, size=(len(T), 3))
-    window = _aligned(WindowPoses(poses.window, poses.frame_idx, scrambled), gps)
+    if bent:  # bent in the middle: neither side is two thirds of it
+        poses = _bent(T, 45, 1.4)
+    else:  # noise
+        poses = _window(T, MODEL)
+        poses = WindowPoses(poses.window, poses.frame_idx, poses.T_model_cam.copy())
+        poses.T_model_cam[:, :3, 3] += np.random.default_rng(1).normal(scale=3.0, size=(90, 3))
+    window = _aligned(poses, gps)
 
     fix = mend_window(window, gps, LIMIT_M)
     assert not fix.mended and fix.how.startswith("not mended")
-    assert [p.info["broken"] for p in fix.pieces] == [True]
-    assert fix.pieces[0].info["rms_m"] > LIMIT_M
+    assert fix.window.info["broken"] and fix.window.info["rms_m"] > LIMIT_M
+
+
+def test_when_most_fixes_are_off_the_window_stays_broken(truth):
+    T, gps = truth
+    gps = gps.copy()
+    gps[40:, 1] += 6.0  # the window's last 50 fixes off: more than the good ones
+    fix = mend_window(_aligned(_window(T, MODEL), gps), gps, LIMIT_M)
+    assert not fix.mended, fix.how
 
 
 def test_align_windows_mends_and_tells(truth):
@@ -109,12 +122,16 @@ def test_align_windows_mends_and_tells(truth):
                                   mend_broken=True, on_broken=lambda w, fix: told.append(fix))
     assert len(told) == 1 and told[0].mended
     assert aligned[0].info["rms_m"] < LIMIT_M and "mend" in aligned[0].info
-    # Not asked to mend: the same window stays broken, as before.
-    [plain] = align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M)
+    # Not asked to mend: the same window stays broken, as before, and is still told.
+    told.clear()
+    [plain] = align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M,
+                                  on_broken=lambda w, fix: told.append((w.info["rms_m"], fix)))
     assert plain.info["broken"] and plain.info["rms_m"] > LIMIT_M
+    [(rms_m, fix)] = told
+    assert rms_m > LIMIT_M and not fix.mended and "off" in fix.how
 
 
-def test_a_run_at_the_windows_start_is_left_out_when_a_neighbour_vouches(truth):
+def test_a_run_at_the_windows_start_keeps_its_poses_where_a_neighbour_vouches(truth):
     T, clean = truth
     gps = clean.copy()
     gps[45:55, 1] += 5.0  # a run at the start of the second window, the end of the first
@@ -125,45 +142,13 @@ def test_a_run_at_the_windows_start_is_left_out_when_a_neighbour_vouches(truth):
 
     fix = mend_window(second, gps, LIMIT_M, neighbours=[first])
     assert fix.mended and "neighbouring window agrees" in fix.how and "45-54" in fix.how
-    err = np.linalg.norm(fix.pieces[0].T_world_cam[:, :3, 3] - T[45:80, :3, 3], axis=1)
-    assert err.max() < 0.5  # 25 fixes of 0.27 m noise hold the run's end, extrapolated, so far
+    np.testing.assert_array_equal(fix.window.poses.frame_idx, np.arange(45, 80))
+    err = np.linalg.norm(fix.window.T_world_cam[:, :3, 3] - T[45:80, :3, 3], axis=1)
+    assert err.max() < 0.6  # 25 fixes of 0.27 m noise hold the run's end, extrapolated, so far
 
-
-def test_a_piece_that_follows_bad_fixes_away_from_its_neighbour_stays_broken(truth):
-    T, clean = truth
-    gps = clean.copy()
-    gps[45:55, 1] += 5.0
-    second = _aligned(WindowPoses((45, 80), np.arange(45, 80), MODEL.apply_poses(T[45:80])), gps)
-    # A neighbour pulled ~1.5 m at its end by the same run cannot vouch for it; split, the
-    # run's ten frames would follow the bad fixes, 5 m from where the neighbour poses them.
-    first = _aligned(WindowPoses((0, 48), np.arange(48), MODEL.apply_poses(T[:48])), gps)
-
-    fix = mend_window(second, gps, LIMIT_M, neighbours=[first])
-    assert "GPS was off" not in fix.how
-    for p in fix.pieces:
-        err = np.linalg.norm(p.T_world_cam[:, :3, 3] - T[p.poses.frame_idx, :3, 3], axis=1)
-        assert p.info["broken"] or err.max() < 0.5, (p.poses.window, err.max())
-    assert fix.mended  # what follows the run is kept
-
-
-def test_a_broken_window_is_told_even_when_mending_is_off(truth):
-    T, gps = truth
-    gps = gps.copy()
-    gps[30:46, 1] += 6.0
-    told = []
-    align.align_windows([_window(T, MODEL)], gps, max_independent_rms_m=LIMIT_M,
-                        on_broken=lambda w, fix: told.append((w.info["rms_m"], fix)))
-    [(rms_m, fix)] = told
-    assert rms_m > LIMIT_M and not fix.mended and "off" in fix.how
-
-
-def test_a_split_that_would_follow_bad_fixes_leaves_the_path_jumping_and_is_refused(truth):
-    T, gps = truth
-    gps = gps.copy()
-    gps[40:, 1] += 6.0  # the window's last 50 fixes off: more than the good ones
-    window = _aligned(_window(T, MODEL), gps)
-    assert window.info["broken"]
-
-    fix = mend_window(window, gps, LIMIT_M)
-    # Either side alone follows its fixes, but the two do not meet: nothing is kept.
-    assert not fix.mended, fix.how
+    # A neighbour pulled ~1.5 m at its end by the same run cannot vouch: the run's frames are
+    # left unposed, the rest kept.
+    pulled = _aligned(WindowPoses((0, 48), np.arange(48), MODEL.apply_poses(T[:48])), gps)
+    fix = mend_window(second, gps, LIMIT_M, neighbours=[pulled])
+    assert fix.mended and "left unposed" in fix.how
+    assert fix.window.poses.frame_idx[0] == 55

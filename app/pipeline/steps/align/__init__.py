@@ -46,7 +46,7 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
                   xyz_check: np.ndarray | None = None,
                   trusted: np.ndarray | None = None, mend_broken: bool = False,
                   on_broken: Callable[[AlignedWindow, Mend], None] | None = None,
-                  min_piece_frames: int = 10) -> list[AlignedWindow]:
+                  min_fixes: int = 10) -> list[AlignedWindow]:
     """Alignment of every window to ``xyz_gps`` (N, 3), the whole journey's metric GPS.
 
     Each window is first aligned on its own (``align_window``, which handles the straight-road
@@ -65,8 +65,8 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
     ``trusted`` (N,) bool: the frames whose GPS positions fit and judge the windows (``fit_rows``:
     a dropout's interpolated positions neither pull a window nor make it look broken).
     With ``mend_broken``, a broken window is replaced by what ``mend.mend_window`` makes of it
-    (pieces of at least ``min_piece_frames`` fixes), and both are passed to ``on_broken``; a piece
-    is linked to none either.
+    (aligned on at least ``min_fixes`` fixes), and both are passed to ``on_broken``; a mended
+    window is linked to none either.
     """
     aligned = []
     for p in poses:
@@ -80,7 +80,7 @@ def align_windows(poses: list[WindowPoses], xyz_gps: np.ndarray, *, joint: bool 
         checked = (aligned if xyz_check is None else
                    _with_residuals_to(aligned, xyz_check, trusted))
         aligned = _mended(aligned, checked, xyz_gps, max_independent_rms_m, xyz_check, trusted,
-                          min_piece_frames, on_broken, mend=mend_broken)
+                          min_fixes, on_broken, mend=mend_broken)
     if joint:
         linkable = [not w.info.get("broken") and "mend" not in w.info for w in aligned]
         for g, group in enumerate(_linked_groups([w.poses for w in aligned], min_shared_frames,
@@ -112,12 +112,12 @@ def _with_residuals_to(aligned: list[AlignedWindow], xyz: np.ndarray,
 
 def _mended(aligned: list[AlignedWindow], checked: list[AlignedWindow], xyz_gps: np.ndarray,
             limit_m: float, xyz_check: np.ndarray | None, trusted: np.ndarray | None,
-            min_piece_frames: int, on_broken: Callable[[AlignedWindow, Mend], None] | None, *,
+            min_fixes: int, on_broken: Callable[[AlignedWindow, Mend], None] | None, *,
             mend: bool) -> list[AlignedWindow]:
     """``aligned`` with each broken window (``checked``: the same windows, their residuals to
-    ``xyz_check``, over ``limit_m``) marked ``info["broken"]``, and with ``mend`` replaced by its
-    ``mend.mend_window`` pieces, each piece's ``info["mend"]`` saying how. ``on_broken`` hears
-    of every broken window, mended or not."""
+    ``xyz_check``, over ``limit_m``) marked ``info["broken"]``, and with ``mend`` replaced by what
+    ``mend.mend_window`` makes of it, its ``info["mend"]`` saying how. ``on_broken`` hears of
+    every broken window, mended or not."""
     good = [w for w, c in zip(aligned, checked) if c.info["rms_m"] <= limit_m]
     out = []
     for w, c in zip(aligned, checked):
@@ -125,15 +125,15 @@ def _mended(aligned: list[AlignedWindow], checked: list[AlignedWindow], xyz_gps:
             out.append(w)
             continue
         fix = (mend_window(c, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
-                           min_frames=min_piece_frames, neighbours=good) if mend else
-               Mend([replace(c, info={**c.info, "broken": True})],
+                           min_frames=min_fixes, neighbours=good) if mend else
+               Mend(replace(c, info={**c.info, "broken": True}),
                     "not mended (alignment_mend_broken is off)"))
         log.info("window frames %d-%d broken (GPS rms %.2f m, over %.2f m): %s", *c.poses.window,
                  c.info["rms_m"], limit_m, fix.how)
         if on_broken is not None:
             on_broken(c, fix)
-        out += ([replace(p, info={**p.info, "mend": fix.how}) for p in fix.pieces] if mend
-                else [replace(w, info={**w.info, "broken": True})])
+        out.append(replace(fix.window, info={**fix.window.info, "mend": fix.how}) if mend
+                   else replace(w, info={**w.info, "broken": True}))
     return out
 
 
