@@ -73,8 +73,9 @@ def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = True,
     if robust_max_error_m is None:
         sim = pycolmap.estimate_sim3d(src, dst)
     else:
+        # Seeded: the same journey mends the same way on every run.
         found = pycolmap.estimate_sim3d_robust(
-            src, dst, pycolmap.RANSACOptions(max_error=float(robust_max_error_m)))
+            src, dst, pycolmap.RANSACOptions(max_error=float(robust_max_error_m), random_seed=0))
         sim = None if found is None else found["tgt_from_src"]
     if sim is None:
         raise ValueError("degenerate point set: the similarity is not determined")

@@ -115,12 +115,10 @@ def _followed(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
             return None
         off_m = np.linalg.norm(sim.apply(centres) - xyz_check[frame_idx], axis=1)
         now = rows & (off_m <= follow_m)
-        if now.sum() < max(min_frames, GPS_RUN_MIN_SHARE * rows.sum()):
-            return None
-        if np.array_equal(now, use):
+        if np.array_equal(now, use) or now.sum() < 3:
             break
         use = now
-    if not (rows & ~use).any():
+    if use.sum() < max(min_frames, GPS_RUN_MIN_SHARE * rows.sum()) or not (rows & ~use).any():
         return None
     if np.sqrt(np.mean(off_m[use] ** 2)) > GOOD_SHARE_OF_LIMIT * limit_m:
         return None
