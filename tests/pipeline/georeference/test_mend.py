@@ -84,9 +84,11 @@ def test_a_bent_end_is_cut_off_not_followed(truth):
     fix = mend_window(window, gps, LIMIT_M)
     assert fix.mended and "left unposed" in fix.how
     kept = fix.window.poses.frame_idx
-    assert kept[0] == 0 and 60 <= kept[-1] < 70
+    assert kept[0] == 0 and 64 <= kept[-1] < 75
     err = np.linalg.norm(fix.window.T_world_cam[:, :3, 3] - T[kept, :3, 3], axis=1)
-    assert np.median(err) < 0.2 and err.max() < 0.6  # the bend's first frames lie within it
+    assert err[kept < 65].max() < 0.3
+    # The bend's first frames follow their fixes within the limit, and are kept that far off.
+    assert err.max() < LIMIT_M + 3 * NOISE_M
 
 
 @pytest.mark.parametrize("bent", [True, False])

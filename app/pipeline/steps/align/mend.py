@@ -74,13 +74,9 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
     keep = ~outer if outer.any() and (gap_m is None or gap_m > limit_m) else k >= 0
     left_out = rows & ~use
     rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
-    bad = left_out & (off_m > limit_m) if (left_out & (off_m > limit_m)).any() else left_out
-    run = frame_idx[bad]
-    how = (f"mended: the GPS was off by up to {off_m[bad].max():.1f} m at {bad.sum()} frames "
-           f"within {run.min()}-{run.max()}"
-           + (f" ({(left_out & ~bad).sum()} more over {GOOD_SHARE_OF_LIMIT * limit_m:.2f} m)"
-              if (left_out & ~bad).any() else "")
-           + f"; aligned without them ({rms_m:.2f} m)")
+    run = frame_idx[left_out]
+    how = (f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at {left_out.sum()} "
+           f"frames within {run.min()}-{run.max()}; aligned without them ({rms_m:.2f} m)")
     if outer.any():
         how += ("; a neighbouring window agrees" if keep.all() else
                 f"; frames {_ends(frame_idx, inside)} past the fixes it follows left unposed "
@@ -97,14 +93,14 @@ def _followed(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
               rows: np.ndarray, min_frames: int
               ) -> tuple[Sim3, dict, np.ndarray, np.ndarray] | None:
     """(similarity, its info, (K,) bool the fixes it follows, (K,) distance of every frame from
-    its fix) of the similarity that follows most of the window's fixes (``rows``), each within a
-    good window's residual; None when it follows fewer than ``GPS_RUN_MIN_SHARE`` of them or
-    ``min_frames``, or not as closely as a good window."""
+    its fix) of the similarity that follows most of the window's fixes (``rows``), each within
+    the limit; None when it follows fewer than ``GPS_RUN_MIN_SHARE`` of them or ``min_frames``,
+    or not as closely as a good window (rms over ``GOOD_SHARE_OF_LIMIT`` of the limit)."""
     frame_idx, T_model_cam = window.poses.frame_idx, window.poses.T_model_cam
     centres = T_model_cam[:, :3, 3]
-    # A fix is followed within a good window's residual: the limit itself would keep the first
-    # frames of a bent end, a metre and more off.
-    follow_m = GOOD_SHARE_OF_LIMIT * limit_m
+    # A fix is followed within the limit: a good window's fixes lie up to it (its rms, not each
+    # fix, is 0.6 of it), and so may the first frames past a bend.
+    follow_m = limit_m
     use = rows.copy()
     for k in range(5):
         try:  # started by LO-RANSAC: a plain fit is pulled off by the very run it should find
