@@ -62,8 +62,8 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
     followed = _followed(window, xyz_gps, xyz_check, limit_m, rows, min_frames)
     if followed is None:
         return Mend(replace(window, info={**window.info, "broken": True}),
-                    f"not mended: no similarity follows {GPS_RUN_MIN_SHARE:.0%} of its fixes "
-                    "(its reconstruction broke, or the GPS over most of it)")
+                    "not mended: no similarity follows two thirds of its fixes as a good window "
+                    "does (its reconstruction broke, or the GPS over most of it)")
     sim, info, use, off_m = followed
     T_world_cam = sim.apply_poses(T_model_cam)
     inside = np.flatnonzero(use)
@@ -71,14 +71,15 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
     outer = (k < inside.min()) | (k > inside.max())
     gap_m = (_disagreement_m(frame_idx[outer], T_world_cam[outer], list(neighbours))
              if outer.any() else None)
-    keep = ~outer if outer.any() and (gap_m is None or gap_m > limit_m) else k >= 0
+    vouched = gap_m is not None and gap_m <= limit_m
+    keep = np.ones(len(frame_idx), bool) if vouched else ~outer
     left_out = rows & ~use
     rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
     run = frame_idx[left_out]
     how = (f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at {left_out.sum()} "
            f"frames within {run.min()}-{run.max()}; aligned without them ({rms_m:.2f} m)")
     if outer.any():
-        how += ("; a neighbouring window agrees" if keep.all() else
+        how += ("; a neighbouring window agrees" if vouched else
                 f"; frames {_ends(frame_idx, inside)} past the fixes it follows left unposed "
                 "(bad fixes or a bent end: the window alone cannot tell)")
     poses = WindowPoses((int(frame_idx[keep][0]), int(frame_idx[keep][-1]) + 1), frame_idx[keep],
