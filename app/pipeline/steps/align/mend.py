@@ -7,9 +7,9 @@ while one similarity follows the rest, at least two thirds of the window's fixes
 good window follows its own (``GOOD_SHARE_OF_LIMIT``). Over those the reconstruction holds, so
 the window is aligned on them and the run left out. Frames of the run that lie between followed
 fixes keep their poses (the reconstruction holds across them); a run at the window's end looks
-the same as a reconstruction whose end bent, so those frames keep their poses only where a good
-neighbouring window poses them within the limit of the same place, and are left unposed
-otherwise.
+the same as a reconstruction whose end bent, so those frames keep their poses only out to the
+farthest one a good neighbouring window poses within the limit of the same place, and are left
+unposed otherwise.
 
 A reconstruction that broke is not mended: cut into parts each aligned on its own, a window
 whose reconstruction had broken with its self-calibration (corpus c0114, seed 100) placed its
@@ -66,21 +66,16 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
                     "does (its reconstruction broke, or the GPS over most of it)")
     sim, info, use, off_m = followed
     T_world_cam = sim.apply_poses(T_model_cam)
-    inside = np.flatnonzero(use)
-    k = np.arange(len(frame_idx))
-    outer = (k < inside.min()) | (k > inside.max())
-    gap_m = (_disagreement_m(frame_idx[outer], T_world_cam[outer], list(neighbours))
-             if outer.any() else None)
-    vouched = gap_m is not None and gap_m <= limit_m
-    keep = np.ones(len(frame_idx), bool) if vouched else ~outer
+    keep = _kept(frame_idx, T_world_cam, np.flatnonzero(use), list(neighbours), limit_m)
     left_out = rows & ~use
     rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
     run = frame_idx[left_out]
     how = (f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at {left_out.sum()} "
            f"frames within {run.min()}-{run.max()}; aligned without them ({rms_m:.2f} m)")
-    if outer.any():
-        how += ("; a neighbouring window agrees" if vouched else
-                f"; frames {_ends(frame_idx, inside)} past the fixes it follows left unposed "
+    inside = np.flatnonzero(use)
+    if inside.min() > 0 or inside.max() < len(frame_idx) - 1:
+        how += ("; a neighbouring window agrees" if keep.all() else
+                f"; frames {_unkept(frame_idx, keep)} past the fixes it follows left unposed "
                 "(bad fixes or a bent end: the window alone cannot tell)")
     poses = WindowPoses((int(frame_idx[keep][0]), int(frame_idx[keep][-1]) + 1), frame_idx[keep],
                         T_model_cam[keep])
@@ -101,17 +96,16 @@ def _followed(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
     centres = T_model_cam[:, :3, 3]
     # A fix is followed within the limit: a good window's fixes lie up to it (its rms, not each
     # fix, is 0.6 of it), and so may the first frames past a bend.
-    follow_m = limit_m
     use = rows.copy()
     for k in range(5):
         try:  # started by LO-RANSAC: a plain fit is pulled off by the very run it should find
             sim, info = align_trajectory(centres[use], xyz_gps[frame_idx[use]],
                                          T_model_cam[use, :3, :3], R_fallback=window.sim.R,
-                                         robust_max_error_m=follow_m if k == 0 else None)
+                                         robust_max_error_m=limit_m if k == 0 else None)
         except ValueError:
             return None
         off_m = np.linalg.norm(sim.apply(centres) - xyz_check[frame_idx], axis=1)
-        now = rows & (off_m <= follow_m)
+        now = rows & (off_m <= limit_m)
         if np.array_equal(now, use) or now.sum() < 3:
             break
         use = now
@@ -122,19 +116,34 @@ def _followed(window: AlignedWindow, xyz_gps: np.ndarray, xyz_check: np.ndarray,
     return sim, info, use, off_m
 
 
-def _ends(frame_idx: np.ndarray, inside: np.ndarray) -> str:
-    """"a-b, c-d": the window's frames before its first followed fix and after its last."""
+def _kept(frame_idx: np.ndarray, T_world_cam: np.ndarray, inside: np.ndarray,
+          neighbours: list[AlignedWindow], limit_m: float) -> np.ndarray:
+    """(K,) bool, the frames that keep their poses: from the first followed fix (rows
+    ``inside``) to the last, and outwards from them as far as the farthest frame a good
+    neighbour poses within ``limit_m`` of where ``T_world_cam`` (K, 4, 4) does, stopping at one
+    it poses further off. A reconstruction that holds there poses the frames between too."""
     first, last = inside.min(), inside.max()
+    keep = np.zeros(len(frame_idx), bool)
+    keep[first:last + 1] = True
+    for outwards in (range(first - 1, -1, -1), range(last + 1, len(frame_idx))):
+        reach = None
+        for r in outwards:
+            gaps = [float(np.linalg.norm(w.T_world_cam[w.poses.frame_idx == frame_idx[r], :3, 3]
+                                         - T_world_cam[r, :3, 3], axis=1).min())
+                    for w in neighbours if (w.poses.frame_idx == frame_idx[r]).any()]
+            if gaps and min(gaps) > limit_m:
+                break
+            if gaps:
+                reach = r
+        if reach is not None:
+            keep[min(reach, first):max(reach, last) + 1] = True
+    return keep
+
+
+def _unkept(frame_idx: np.ndarray, keep: np.ndarray) -> str:
+    """"a-b, c-d": the frames before the first kept one and after the last."""
+    rows = np.flatnonzero(keep)
+    first, last = rows.min(), rows.max()
     return ", ".join(([f"{frame_idx[0]}-{frame_idx[first - 1]}"] if first > 0 else [])
                      + ([f"{frame_idx[last + 1]}-{frame_idx[-1]}"]
                         if last < len(frame_idx) - 1 else []))
-
-
-def _disagreement_m(frame_idx: np.ndarray, T_world_cam: np.ndarray,
-                    neighbours: list[AlignedWindow]) -> float | None:
-    """The largest distance (m) between a centre of ``T_world_cam`` (K, 4, 4), posing frames
-    ``frame_idx`` (K,), and the same frame's centre in ``neighbours``; None: they share none."""
-    gaps = [np.linalg.norm(w.T_world_cam[w.poses.frame_idx == f, :3, 3] - T[:3, 3], axis=1)
-            for w in neighbours for f, T in zip(frame_idx, T_world_cam)
-            if (w.poses.frame_idx == f).any()]
-    return float(np.max(np.concatenate(gaps))) if gaps else None
