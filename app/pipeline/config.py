@@ -183,7 +183,7 @@ class PipelineConfig(BaseModel):
     # A broken window mended rather than discarded (docs/decisions/broken-window-mend.md).
     alignment_mend_broken: bool = Field(
         True, description="a window over max_alignment_rms_gps_ratio is mended where a run of "
-        "bad fixes or a bend in its reconstruction explains it")
+        "bad fixes explains it")
     # An antenna offset nobody declared is estimated from the windows that turn
     # (docs/decisions/antenna-offset.md); applied only when it is this sure.
     antenna_offset_max_sigma_m: float = Field(

@@ -23,7 +23,7 @@ def broken_record(result) -> list[dict]:
     """A run's broken windows, as its corpus record keeps them."""
     return [{"frames": [b.first_frame, b.last_frame], "rms_m": round(b.rms_m, 3),
              "limit_m": round(b.limit_m, 3), "mended": b.mended, "how": b.how,
-             "tracks": list(b.track_ids)} for b in getattr(result, "broken_windows", [])]
+             "tracks": list(b.track_ids)} for b in result.broken_windows]
 
 
 def broken_summary(records: list[dict]) -> dict:
@@ -61,8 +61,8 @@ def table_broken(summary: dict) -> str:
     rows.append(["journeys", *(", ".join(summary[h]["journeys"]) or "–" for h in HALVES)])
     return ("### Windows that disagree with the GPS\n\nA window whose own alignment lies further "
             "from the GPS than the limit (5 x its noise, at least 1 m) is mended where a run of "
-            "bad fixes or a bend in the reconstruction explains it (`steps.align.mend`); what "
-            "is left broken loses its signs.\n\n" + md_table(["", *HALVES], rows))
+            "bad fixes explains it (`steps.align.mend`); what is left broken loses its signs."
+            "\n\n" + md_table(["", *HALVES], rows))
 
 
 def gps_jump_of(name: str) -> dict:

@@ -10,7 +10,7 @@ the bias over its length. A short stretch of
 straight road leaves the roll about the road undetermined by positions;
 ``geometry.similarity.align_trajectory`` fixes it from gravity, and the joint fit keeps it. A
 window whose own alignment lies further from the GPS than the broken-reconstruction limit is
-mended where a run of bad fixes or a bend explains it (``mend``), else its signs are refused.
+mended where a run of bad fixes explains it (``mend``), else its signs are refused.
 
 ``track_poses`` gives a sign its frames' poses: ``full`` from its chain; ``short`` (the paper's
 best against ORB-SLAM's drift) from one window aligned again over only the frames around the sign
@@ -118,10 +118,11 @@ def _mended(aligned: list[AlignedWindow], checked: list[AlignedWindow], xyz_gps:
     ``xyz_check``, over ``limit_m``) marked ``info["broken"]``, and with ``mend`` replaced by what
     ``mend.mend_window`` makes of it, its ``info["mend"]`` saying how. ``on_broken`` hears of
     every broken window, mended or not."""
-    good = [w for w, c in zip(aligned, checked) if c.info["rms_m"] <= limit_m]
+    broken = [c.info["rms_m"] > limit_m for c in checked]
+    good = [w for w, b in zip(aligned, broken) if not b]
     out = []
-    for w, c in zip(aligned, checked):
-        if c.info["rms_m"] <= limit_m:
+    for w, c, b in zip(aligned, checked, broken):
+        if not b:
             out.append(w)
             continue
         fix = (mend_window(c, xyz_gps, limit_m, xyz_check=xyz_check, trusted=trusted,
@@ -140,7 +141,7 @@ def _mended(aligned: list[AlignedWindow], checked: list[AlignedWindow], xyz_gps:
 def report(n_windows: int, aligned: list[AlignedWindow], notes: list[str]) -> StageReport:
     """The align stage's report: the windows aligned (their GPS residual), then ``notes``, one
     line each: frames left out as GPS dropouts, windows dropped (``align_windows(on_dropped=
-    ...)``)."""
+    ...)``), windows broken and how they ended (``on_broken``)."""
     chains = len({w.info.get("group") for w in aligned if "group" in w.info})
     summary = f"{len(aligned)} of {n_windows} windows aligned to GPS"
     if chains:

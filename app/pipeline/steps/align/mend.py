@@ -66,13 +66,13 @@ def mend_window(window: AlignedWindow, xyz_gps: np.ndarray, limit_m: float, *,
                     "does (its reconstruction broke, or the GPS over most of it)")
     sim, info, use, off_m = followed
     T_world_cam = sim.apply_poses(T_model_cam)
-    keep = _kept(frame_idx, T_world_cam, np.flatnonzero(use), list(neighbours), limit_m)
+    inside = np.flatnonzero(use)
+    keep = _kept(frame_idx, T_world_cam, inside, list(neighbours), limit_m)
     left_out = rows & ~use
     rms_m = float(np.sqrt(np.mean(off_m[use] ** 2)))
     run = frame_idx[left_out]
     how = (f"mended: the GPS was off by up to {off_m[left_out].max():.1f} m at {left_out.sum()} "
            f"frames within {run.min()}-{run.max()}; aligned without them ({rms_m:.2f} m)")
-    inside = np.flatnonzero(use)
     if inside.min() > 0 or inside.max() < len(frame_idx) - 1:
         how += ("; a neighbouring window agrees" if keep.all() else
                 f"; frames {_unkept(frame_idx, keep)} past the fixes it follows left unposed "
