@@ -79,6 +79,8 @@ def with_gps_jump(bundle: Path, out: Path, jump: dict) -> dict:
     """``bundle`` copied to ``out`` with ``jump`` (as ``gps_jump_of`` draws it) added to its
     gps.csv fixes; the jump as applied (its start and the fixes it moved)."""
     with zipfile.ZipFile(bundle) as src:
+        if "gps.csv" not in src.namelist():
+            raise ValueError(f"{bundle}: --gps-jump moves gps.csv fixes, and it has no gps.csv")
         rows = list(csv.DictReader(io.StringIO(src.read("gps.csv").decode())))
         t_fix = [float(r["timestamp_s"]) for r in rows if r["lat"]]
         if len(t_fix) < 2:

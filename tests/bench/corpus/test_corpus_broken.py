@@ -44,6 +44,10 @@ def test_a_jump_moves_only_the_fixes_of_its_run(tmp_path: Path):
         assert moved_m == pytest.approx(6.0 if float(a["timestamp_s"]) in (4.0, 5.0) else 0.0,
                                         abs=0.01)
     assert zipfile.ZipFile(tmp_path / "b.zip").read("manifest.json") == b"{}"
+    with zipfile.ZipFile(tmp_path / "nmea.zip", "w") as z:
+        z.writestr("manifest.json", "{}")
+    with pytest.raises(ValueError, match="no gps.csv"):
+        with_gps_jump(tmp_path / "nmea.zip", tmp_path / "c.zip", jump)
     # Drawn from the name: the same every run, another for another journey.
     assert gps_jump_of("c0001") == gps_jump_of("c0001") != gps_jump_of("c0002")
     assert 4.0 <= gps_jump_of("c0001")["offset_m"] <= 10.0
