@@ -26,6 +26,7 @@ class SiftOptions:
     max_image_size: int = 1600
     first_octave: int = 0
     overlap: int = 6  # sequential matching: temporal neighbours per frame
+    extractor: str = "colmap"  # or "opencv" (``cv_sift``: the full-size frame, octave -1)
 
 
 @dataclass(frozen=True, kw_only=True)

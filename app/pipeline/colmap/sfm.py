@@ -7,8 +7,9 @@ not with the square of the journey's length.
 
 All COLMAP work runs in a spawned child process: fatal COLMAP errors abort the process (glog
 ``CHECK``), and that must fail the journey with a reason, never kill a worker. Every COLMAP option
-comes from ``presets``. This is also the only module that knows COLMAP's pixel convention (pixel
-centres at +0.5) and converts at the boundary.
+comes from ``presets``. This module converts between OpenCV's pixels and COLMAP's (pixel centres
+at +0.5) at the boundary; only ``cv_sift``, which writes keypoints into COLMAP's database, knows
+that convention too.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from app.pipeline.colmap import presets, sift_cache
+from app.pipeline.colmap import cv_sift, presets, sift_cache
 from app.pipeline.colmap.lifeline import die_with_parent
 from app.pipeline.colmap.presets import MappingOptions, ProcessOptions, SiftOptions
 from app.pipeline.types import CameraModel, PipelineError, WindowObservations
@@ -116,6 +117,9 @@ class SfmJob:
     # A database of SIFT features other stages of the journey extracted (``sift_cache``): images
     # found there are not extracted again. None: extract every image into the stage's own.
     feature_cache: Path | None = None
+    # The intrinsics when they are known (ego-motion): SIFT pairs are then verified with them, an
+    # essential matrix instead of a fundamental one, in two thirds of the time (c5006).
+    camera: CameraModel | None = None
 
 
 @dataclass(frozen=True)
@@ -239,13 +243,20 @@ def _retry_from_other_focals(pycolmap, job: SfmJob, index: int, window: WindowRe
 
 
 def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float]:
-    """Features and sequential matches of ``job.extract_names``; returns wall seconds per step."""
+    """Features (COLMAP's SIFT, or OpenCV's with ``job.sift.extractor``) and sequential matches
+    of ``job.extract_names``; returns wall seconds per step."""
     t0 = time.perf_counter()
     reader = presets.options(pycolmap, "ImageReaderOptions", presets.IMAGE_READER)
     extraction = presets.options(pycolmap, "FeatureExtractionOptions", {},
                                  **presets.sift_extraction(job.sift, job.process))
 
     def extract(into: Path, names: list[str]) -> None:
+        if job.sift.extractor == "opencv":
+            if not into.exists():
+                pycolmap.Database.open(into).close()  # COLMAP's schema, empty
+            cv_sift.extract_into(pycolmap, into, job.image_dir, names, reader,
+                                 max_features=job.sift.max_features, threads=job.process.threads)
+            return
         pycolmap.extract_features(into, job.image_dir, image_names=names,
                                   camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                   extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -258,6 +269,9 @@ def _extract_and_match(pycolmap, job: SfmJob, database: Path) -> dict[str, float
         sift_cache.write_database(job.feature_cache, database, job.extract_names)
         log.info("SIFT: %d of %d images extracted, the others taken from the journey's cache",
                  len(missing), len(job.extract_names))
+    if job.camera is not None:
+        with pycolmap.Database.open(database) as db:
+            _write_known_camera(pycolmap, db, job.camera)
     t1 = time.perf_counter()
     matching = presets.options(pycolmap, "FeatureMatchingOptions", {},
                                num_threads=job.process.threads)
@@ -280,11 +294,8 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
                            image_names=feats.image_names, options=reader)
     with pycolmap.Database.open(database) as db:
         ids = {im.name: im.image_id for im in db.read_all_images()}
-        for cam in db.read_all_cameras() if feats.camera is not None else []:
-            new = _colmap_camera(pycolmap, feats.camera)
-            new.camera_id = cam.camera_id
-            new.has_prior_focal_length = True
-            db.update_camera(new)
+        if feats.camera is not None:
+            _write_known_camera(pycolmap, db, feats.camera)
         image_ids = [ids[name] for name in feats.image_names]
         for image_id, kp in zip(image_ids, feats.keypoints_px):
             db.write_keypoints(image_id, np.asarray(kp, np.float32) + COLMAP_PIXEL_OFFSET)
@@ -301,6 +312,15 @@ def _import_and_verify(pycolmap, job: SfmJob, database: Path) -> dict[str, float
     pycolmap.geometric_verification(database, verifier_options=verifier,
                                     two_view_geometry_options=verify)
     return {"import": t1 - t0, "verify": time.perf_counter() - t1}
+
+
+def _write_known_camera(pycolmap, db, camera: CameraModel) -> None:
+    """Give the open database's camera(s) ``camera``'s intrinsics, marked as known."""
+    for cam in db.read_all_cameras():
+        new = _colmap_camera(pycolmap, camera)
+        new.camera_id = cam.camera_id
+        new.has_prior_focal_length = True
+        db.update_camera(new)
 
 
 def _colmap_camera(pycolmap, camera: CameraModel):

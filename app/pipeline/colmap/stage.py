@@ -103,17 +103,25 @@ class StageSfm:
         job = sfm.SfmJob(
             image_dir=self.journey.frames[0].path.parent, workdir=self.workdir,
             extract_names=extract, windows=requests,
-            sift=SiftOptions(
-                max_features=cfg.sift_max_features, max_image_size=cfg.sift_max_image_size,
-                first_octave=(-1 if self.journey.image_width < cfg.sift_upsample_below_px
-                              else cfg.sift_first_octave),
-                overlap=cfg.match_overlap),
+            sift=self._sift(),
             mapping=_mapping(cfg), process=_process(cfg),
-            verbose=self.verbose, imported=imported, feature_cache=self.feature_cache)
+            verbose=self.verbose, imported=imported, feature_cache=self.feature_cache,
+            camera=camera)
         done = sfm.run_sfm(job, on_mapped=on_mapped, on_prepared=on_prepared)
         klt = {"klt": round(features.tracked_s, 3), "wait": round(max(0.0, waited_s), 3)}
         return replace(done, timings_s={**(klt if imported is not None else {}),
                                         **done.timings_s})
+
+    def _sift(self) -> SiftOptions:
+        cfg = self.config
+        return SiftOptions(
+            max_features=cfg.sift_max_features, max_image_size=cfg.sift_max_image_size,
+            first_octave=(-1 if self.journey.image_width < cfg.sift_upsample_below_px
+                          else cfg.sift_first_octave),
+            overlap=cfg.match_overlap,
+            # Ego-motion's SIFT by OpenCV: faster, as precise (docs/decisions/ego-opencv-sift.md).
+            # Self-calibration keeps COLMAP's, whose calibrations were measured.
+            extractor="opencv" if self.stage == "ego_motion" else "colmap")
 
     def _gray(self, path: Path) -> np.ndarray:
         return read_gray(path, self.stage)

@@ -9,7 +9,7 @@ frame is mapped about once; the shared frames let the alignment tie the chain to
 (``sign_tracks.split_passes``).
 
 Correspondences come from KLT feature tracks (``colmap.klt_features``) by default, or from
-COLMAP's SIFT. Each window starts from two frames a few metres apart (``requests(init_gap_frames=
+SIFT (OpenCV's, ``colmap.cv_sift``) where the mapped frames lie metres apart. Each window starts from two frames a few metres apart (``requests(init_gap_frames=
 ...)``): left to itself, COLMAP starts from the most-matched pair, i.e. neighbouring frames, and on
 loop-300 that short forward baseline towards a facade fixed a wrong relative pose which the whole
 window then kept (bent trajectories, 2-8 m ATE after a similarity, at 0.6 px mean reprojection
