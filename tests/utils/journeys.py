@@ -85,3 +85,18 @@ def first_frames(bundle: Path, n_frames: int, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(zip_bytes(files, zipfile.ZIP_STORED))
     return out
+
+
+def sliding_frames(directory: Path, n: int, shift_px: int = 40) -> list[str]:
+    """``n`` 640x480 PNG views sliding ``shift_px`` left per frame across one textured scene (SIFT
+    finds and matches it); their names."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    scene = cv2.GaussianBlur(rng.integers(0, 255, (480, 1400), dtype=np.uint8), (0, 0), 2.0)
+    names = []
+    for k in range(n):
+        names.append(f"{k:06d}.png")
+        cv2.imwrite(str(directory / names[-1]), scene[:, shift_px * k:shift_px * k + 640])
+    return names

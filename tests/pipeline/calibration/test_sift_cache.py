@@ -5,26 +5,14 @@ images itself, matches included, or the cache would change what the candidates m
 import sqlite3
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
 from app.pipeline.colmap.presets import ProcessOptions, SiftOptions
 from app.pipeline.colmap.sfm import SfmJob
+from tests.utils.journeys import sliding_frames
 
 TABLES = ("cameras", "rigs", "rig_sensors", "frames", "frame_data", "images", "keypoints",
           "descriptors", "matches", "two_view_geometries")
-
-
-def _frames(directory: Path, n: int) -> list[str]:
-    """``n`` views sliding across one textured scene (SIFT finds and matches it)."""
-    rng = np.random.default_rng(5)
-    scene = cv2.GaussianBlur(rng.integers(0, 255, (480, 1400), dtype=np.uint8), (0, 0), 2.0)
-    names = []
-    for k in range(n):
-        names.append(f"{k:06d}.png")
-        cv2.imwrite(str(directory / names[-1]), scene[:, 40 * k:40 * k + 640])
-    return names
 
 
 def _tables(database: Path) -> dict[str, list[tuple]]:
@@ -38,7 +26,7 @@ def test_a_candidate_database_from_the_cache_is_the_one_extraction_writes(tmp_pa
 
     images = tmp_path / "images"
     images.mkdir()
-    names = _frames(images, 10)
+    names = sliding_frames(images, 10)
     (images / names[7]).write_bytes(b"not a PNG")  # COLMAP skips it: so must the cache
     cache = tmp_path / "cache.db"
 

@@ -12,18 +12,9 @@ import pytest
 from app.pipeline.colmap.presets import ProcessOptions, SiftOptions
 from app.pipeline.colmap.sfm import SfmJob
 from app.pipeline.types import CameraModel
+from tests.utils.journeys import sliding_frames
 
 SHIFT_PX = 40  # the scene slides this far left from one frame to the next
-
-
-def _frames(directory: Path, n: int) -> list[str]:
-    rng = np.random.default_rng(5)
-    scene = cv2.GaussianBlur(rng.integers(0, 255, (480, 1400), dtype=np.uint8), (0, 0), 2.0)
-    names = []
-    for k in range(n):
-        names.append(f"{k:06d}.png")
-        cv2.imwrite(str(directory / names[-1]), scene[:, SHIFT_PX * k:SHIFT_PX * k + 640])
-    return names
 
 
 def _features(database: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +42,7 @@ def test_opencv_features_sit_where_colmap_puts_them_and_match(tmp_path):
 
     images = tmp_path / "images"
     images.mkdir()
-    names = _frames(images, 4)
+    names = sliding_frames(images, 4, SHIFT_PX)
     camera = CameraModel(640, 480, 500.0, 500.0, 319.5, 239.5, 0.0, 0.0)
     colmap = _job(images, tmp_path / "colmap", names, "colmap")
     _extract_and_match(pycolmap, colmap, colmap.workdir / "features.db")
