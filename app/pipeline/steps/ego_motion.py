@@ -8,15 +8,15 @@ frame is mapped about once; the shared frames let the alignment tie the chain to
 (``align.align_windows``). A sign seen on two passes (a loop) has one track per pass
 (``sign_tracks.split_passes``).
 
-Correspondences come from KLT feature tracks (``colmap.klt_features``) by default, or from
-SIFT (OpenCV's, ``colmap.cv_sift``) where the mapped frames lie metres apart. Each window starts from two frames a few metres apart (``requests(init_gap_frames=
-...)``): left to itself, COLMAP starts from the most-matched pair, i.e. neighbouring frames, and on
-loop-300 that short forward baseline towards a facade fixed a wrong relative pose which the whole
-window then kept (bent trajectories, 2-8 m ATE after a similarity, at 0.6 px mean reprojection
-error while the true poses fit the same tracks at 0.12 px). COLMAP maps each window with the
-intrinsics held fixed at the self-calibrated values; its camera model applies the calibrated
-distortion exactly, which is the same geometry as undistorting the images first without
-resampling them (no interpolation blur, no time).
+Correspondences come from KLT feature tracks (``colmap.klt_features``) by default, or from SIFT
+(OpenCV's, ``colmap.cv_sift``) where the mapped frames lie metres apart. Each window starts from
+two frames a few metres apart (``requests(init_gap_frames=...)``): left to itself, COLMAP starts
+from the most-matched pair, i.e. neighbouring frames, and on loop-300 that short forward baseline
+towards a facade fixed a wrong relative pose which the whole window then kept (bent trajectories,
+2-8 m ATE after a similarity, at 0.6 px mean reprojection error while the true poses fit the same
+tracks at 0.12 px). COLMAP maps each window with the intrinsics held fixed at the self-calibrated
+values; its camera model applies the calibrated distortion exactly, which is the same geometry as
+undistorting the images first without resampling them (no interpolation blur, no time).
 """
 
 from __future__ import annotations

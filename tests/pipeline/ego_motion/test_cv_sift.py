@@ -1,6 +1,6 @@
 """OpenCV's SIFT written into COLMAP's database (``colmap.cv_sift``) must put each feature where
-COLMAP's own extractor puts it (COLMAP's pixel convention, the half-size decode undone), and give
-COLMAP pairs it can match and verify."""
+COLMAP's own extractor puts it (COLMAP's pixel convention, OpenCV's quarter pixel undone), and
+give COLMAP pairs it can match and verify."""
 
 import sqlite3
 from pathlib import Path
