@@ -53,6 +53,9 @@ def _task(spec: JourneySpec, variant: str, bundle: Path, workdir: Path, base: Pi
     if variant in ("gt", "gt_alt"):
         return RunTask(label, bundle, workdir, {**config, "reuse_known_calibration": True},
                        known_camera=truth_camera)
+    if variant == "gt_half":  # the first half: peak memory against the journey's length
+        return RunTask(label, bundle, workdir, {**config, "reuse_known_calibration": True},
+                       known_camera=truth_camera, max_frames=spec.synth.n_frames // 2)
     if variant == "naive":
         return RunTask(label, bundle, workdir, config, naive=True,
                        max_frames=spec.naive_max_frames)

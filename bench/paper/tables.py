@@ -18,7 +18,10 @@ PAPER_SIGNS = {"rel_mean_m": 0.241, "abs_mean_m": 1.295}  # Table IV, short traj
 PAPER_ATE = {"ate_full_m": 35.135, "ate5_mean_m": 0.012, "ate5_std_m": 0.031}  # Colmap calib, LC
 
 CALIBRATION = {"ours": "self", "ours_alt": "self", "gt": "ground truth",
-               "gt_alt": "ground truth", "naive": "naive (SIMPLE_RADIAL)"}
+               "gt_alt": "ground truth", "gt_half": "ground truth",
+               "naive": "naive (SIMPLE_RADIAL)"}
+# Runs on a prefix of the journey, for their cost only: their signs and poses are not compared.
+PREFIX_RUNS = ("gt_half",)
 
 
 # What each table's numbers mean, printed under its heading.
@@ -75,7 +78,7 @@ def _calibration_label(journey: dict, variant: str, run: dict) -> str:
 
 
 def _frames(journey: dict, variant: str, run: dict) -> str:
-    if variant == "naive" and journey.get("naive_max_frames"):
+    if variant in PREFIX_RUNS or variant == "naive" and journey.get("naive_max_frames"):
         return f"{run['n_frames']} (first of {journey['n_frames']})"
     return str(run["n_frames"])
 
@@ -112,7 +115,7 @@ def table_ego_motion(report: dict) -> str:
 
 def table_signs(report: dict) -> str:
     rows = []
-    for name, journey, variant, run in _runs(report):
+    for name, journey, variant, run in _runs(report, set(CALIBRATION) - set(PREFIX_RUNS)):
         s = run["signs"]
         rows.append([name, _calibration_label(journey, variant, run), run["alignment"],
                      f"{s['n_signs']} / {journey['n_signs_mappable']}", fmt(s["rel_mean_m"]),
@@ -215,9 +218,33 @@ def table_sift_ratio(report: dict) -> str:
                    NOTE_RATIO)
 
 
+NOTE_MEMORY = (
+    "The calibrated camera's run on the whole journey and on its first half (issue 68: memory "
+    "must not grow with the length). Peak MB as in the speed table (the pipeline's process, whose "
+    "peak includes reading the bundle, plus its largest COLMAP child); per 1,000 frames: that "
+    "peak over the frames, x 1000.")
+
+
+def table_memory(report: dict) -> str:
+    rows = []
+    for name, journey, variant, run in _runs(report, ("gt_half", "gt")):
+        if "gt_half" not in journey["runs"]:
+            continue
+        peak = run["peak_rss_mb"]
+        total = peak.get("total_mb")
+        rows.append([name, _frames(journey, variant, run), fmt(total, 0),
+                     fmt(peak.get("self_mb"), 0), fmt(peak.get("children_mb"), 0),
+                     fmt(total * 1000 / run["n_frames"] if total else None, 0)])
+    if not rows:
+        return "### Peak memory against length\n\nNo journey ran on its first half."
+    return section("Peak memory against length",
+                   ["journey", "frames", "peak MB", "pipeline MB", "COLMAP child MB",
+                    "peak MB per 1,000 frames"], rows, NOTE_MEMORY)
+
+
 REPORT_TABLES: list[Callable[[dict], str]] = [
     table_calibration, table_ego_motion, table_signs, table_speed, table_time_parts,
-    table_windows, table_sift_ratio, table_baselines, table_failures]
+    table_windows, table_sift_ratio, table_memory, table_baselines, table_failures]
 
 
 def render_report(report: dict) -> str:

@@ -194,6 +194,22 @@ def test_report_says_where_the_time_went_and_the_ratio_to_plain_sift():
         "| long | gt | 5.00 | 2.00 (120 frames) | 2.50× |")
 
 
+def test_memory_table_sets_the_whole_journey_beside_its_first_half():
+    def run(frames: int, self_mb: float) -> dict:
+        return {"status": "ok", "n_frames": frames, "fps": 5.0, "wall_s": 60.0, "timings_s": {},
+                "peak_rss_mb": {"self_mb": self_mb, "children_mb": 500.0,
+                                "total_mb": self_mb + 500.0}}
+    report = {"journeys": {
+        "long": {"n_frames": 600, "runs": {"gt": run(600, 1000.0), "gt_half": run(300, 900.0)}},
+        "short": {"n_frames": 70, "runs": {"gt": run(70, 600.0)}}}}
+    assert tables.table_memory(report).splitlines()[-2:] == [
+        "| long | 600 | 1500 | 1000 | 500 | 2500 |",
+        "| long | 300 (first of 600) | 1400 | 900 | 500 | 4667 |"]
+    # A prefix run's signs are not set against the whole journey's truth.
+    report["journeys"] = {"long": {"n_frames": 600, "runs": {"gt_half": run(300, 900.0)}}}
+    assert "| long |" not in tables.table_signs(report)
+
+
 @pytest.mark.slow
 @pytest.mark.extended  # a bench end to end (minutes): `pytest -m extended`
 def test_quick_bench_writes_tables_json_and_plots(tmp_path):
