@@ -250,7 +250,7 @@ def load_detector(config: DetectorConfig) -> Detector:
                                        providers=["CPUExecutionProvider"])
     except Exception as exc:
         raise DetectorError(f"detector model {path} cannot be loaded: {_one_line(exc)}") from None
-    inputs, outputs = session.get_inputs(), session.get_outputs()
+    inputs = session.get_inputs()
     if len(inputs) != 1 or len(inputs[0].shape) != 4:
         raise DetectorError(f"detector model {path} must take one image input [1, 3, H, W], "
                             f"not {[list(i.shape) for i in inputs]}")

@@ -128,9 +128,9 @@ def _kept(frame_idx: np.ndarray, T_world_cam: np.ndarray, inside: np.ndarray,
     for outwards in (range(first - 1, -1, -1), range(last + 1, len(frame_idx))):
         reach = None
         for r in outwards:
-            gaps = [float(np.linalg.norm(w.T_world_cam[w.poses.frame_idx == frame_idx[r], :3, 3]
-                                         - T_world_cam[r, :3, 3], axis=1).min())
-                    for w in neighbours if (w.poses.frame_idx == frame_idx[r]).any()]
+            gaps = [float(np.linalg.norm(w.T_world_cam[at, :3, 3] - T_world_cam[r, :3, 3],
+                                         axis=1).min())
+                    for w in neighbours if (at := w.poses.frame_idx == frame_idx[r]).any()]
             if gaps and min(gaps) > limit_m:
                 break
             if gaps:
