@@ -119,6 +119,12 @@ EGO_MOTION_MAPPER = {
 }
 
 
+# COLMAP tries a given initial pair as often as it would try pairs of its own choosing (200
+# times): a pair too close for the angle it needs fails every time, 14 s on one core (c0114's
+# first window, four chosen pairs, 79 s to fail). Its own choice keeps the 200: each is another pair.
+CHOSEN_INIT_PAIR_TRIALS = 3
+
+
 def mapper_knobs(mapping: MappingOptions) -> dict[str, Any]:
     # COLMAP re-runs every bundle adjustment after filtering outliers up to 5 (global) / 2 (local)
     # times; on our short windows the re-runs doubled the mapping time (turn-70), and

@@ -384,8 +384,11 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                   if all(name in ids for name in p)]
         pairs = [tuple(ids[n] for n in p) for p in chosen] + pairs
     models = None
+    own_choice_trials = options.init_num_trials
     for id1, id2 in pairs:
         options.init_image_id1, options.init_image_id2 = id1, id2
+        options.init_num_trials = (own_choice_trials if id1 == -1
+                                   else presets.CHOSEN_INIT_PAIR_TRIALS)
         error = "COLMAP found no initial image pair (too little parallax or texture)"
         shutil.rmtree(out / "0", ignore_errors=True)
         try:
