@@ -121,7 +121,8 @@ EGO_MOTION_MAPPER = {
 
 # COLMAP tries a given initial pair as often as it would try pairs of its own choosing (200
 # times): a pair too close for the angle it needs fails every time, 14 s on one core (c0114's
-# first window, four chosen pairs, 79 s to fail). Its own choice keeps the 200: each is another pair.
+# first window, four chosen pairs, 79 s to fail). Its own choice keeps the 200: each trial is
+# another pair (docs/decisions/ego-init-pair-trials.md).
 CHOSEN_INIT_PAIR_TRIALS = 3
 
 
