@@ -18,12 +18,13 @@ offset pushing the images' turns off the log is not favoured and every offset is
 same pairs. f (> 0) and b (what driving forward leaves in the images' motion, px/s; a prior
 N(0, (DRIFT_RAD_S f)^2), so that a steady turn cannot hide in it) are fitted in closed form per
 offset under a Huber loss; the offset is the best of a grid over prior -+ search, refined by a
-bounded scalar search. Its sigma is that of nonlinear least squares in (d, f, b) from the
-Jacobian, the larger of the plain figure and Newey-West's (residuals run on over seconds), plus
-the larger of what the fixes' noise (NOISE_DRAWS) and where they fall (JACKKNIFE_GROUPS) move the
-match by, and a floor. A rival minimum counts only where f is well above zero too. Each of
-SMOOTH_S is tried; of those whose course changes the fixes' noise leaves clean (MAX_NOISE_SHARE),
-the smallest sigma wins. The measurements behind the choices:
+bounded scalar search within REFINE_S of it on the pairs whose course is known all across that
+span (so that no offset gains by bringing a pair onto the log). Its sigma is that of nonlinear
+least squares in (d, f, b) from the Jacobian, the larger of the plain figure and Newey-West's
+(residuals run on over seconds), plus the larger of what the fixes' noise (NOISE_DRAWS) and where
+they fall (JACKKNIFE_GROUPS) move the match by, and a floor. A rival minimum counts only where f
+is well above zero too. Each of SMOOTH_S is tried; of those whose course changes the fixes' noise
+leaves clean (MAX_NOISE_SHARE), the smallest sigma wins. The measurements behind the choices:
 docs/decisions/clock-offset-from-turns.md.
 """
 
@@ -44,6 +45,10 @@ SMOOTH_S = (0.2, 0.3, 0.45, 0.7)  # Gaussian blurs (sigma, s) tried on both sign
 MAX_CUTOFF_HZ = 1.0  # the position spline passes the path's motion below this (and below half
 # the fix rate) and damps the fixes' noise above it
 GRID_STEP_S = 0.1  # the coarse search; the objective is smooth over a turn's seconds
+# The refinement searches this far either side of the best grid offset, on the pairs known all
+# across it: three grid steps, room for the grid's best to sit a pair or two off (0.6 s measured:
+# no better at 10 Hz, fewer pairs kept on a short clip).
+REFINE_S = 3 * GRID_STEP_S
 STEP_S = 0.02  # both signals are sampled this finely and interpolated linearly
 HUBER_K = 2.5  # residuals beyond this many robust sigmas count linearly (a lost pair of frames)
 IRLS_ITERATIONS = 3
@@ -60,7 +65,8 @@ SECOND_MIN_APART_S = 2.0
 DRIFT_RAD_S = 0.05
 MIN_SCALE_T = 5.0  # f must be this many of its sigmas above zero: the images see the GPS's turns
 MAX_SIGMA_S = 1.0
-MIN_PAIRS, MIN_FIXES = 20, 5
+MIN_PAIRS = 20
+MIN_FIXES = 6  # the jackknife leaves one out of six, and a smoothing spline needs five
 # The fixes' noise moves the course the images are matched against, and a turn or two gives the
 # residuals too few independent stretches to tell: that share of sigma is found by matching again
 # (linearised) against the course from the fixes with this many draws of their noise added.
@@ -70,6 +76,9 @@ NOISE_DRAWS = 8
 # first and last always kept), linearised likewise, measures it; the larger of the two counts.
 JACKKNIFE_GROUPS = 8
 MAX_NOISE_SHARE = 0.1
+# Beyond this the fixes' noise moves the course more than the turns do: whatever matches it is
+# noise (a phone's log at walking pace matched 5.5 s off, its f a tenth of the lens's).
+MAX_NOISY_SHARE = 1.0
 SIGMA_FLOOR_S = 0.01  # below what noise-free synthetic journeys are matched to (0.002-0.006 s)
 _BLOCK = 64  # offsets evaluated together (memory: _BLOCK x K floats per array)
 
@@ -163,6 +172,9 @@ def _refusal(m: _Match, prior_offset_s: float) -> str | None:
     if not m.f_px > MIN_SCALE_T * m.f_sigma_px:
         return (f"too little signal: the images' motion does not follow the GPS turns (scale "
                 f"{m.f_px:.0f} +- {m.f_sigma_px:.0f} px)")
+    if m.noise_share > MAX_NOISY_SHARE:
+        return (f"the GPS course is mostly noise: the fixes' noise changes it "
+                f"{m.noise_share:.1f}x as much as the turns do")
     if m.second_s is not None:
         return (f"ambiguous: {m.second_s:+.1f} s fits nearly as well as {m.offset_s:+.2f} s "
                 f"(prior {prior_offset_s:+.1f} s)")
@@ -254,25 +266,35 @@ def _blurred_dx(ends: tuple[np.ndarray, np.ndarray], dx: np.ndarray, smooth_s: f
 
 def _increments(course: _Course, smooth_s: float, ends, offsets: np.ndarray) -> np.ndarray:
     """(D, K) blurred course change over each pair's times plus each offset; 0 where unknown."""
+    change, ok = _course_changes(course, smooth_s, ends, offsets)
+    return np.where(ok, change, 0.0)
+
+
+def _course_changes(course: _Course, smooth_s: float, ends, offsets: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(D, K) blurred course change over each pair's times plus each offset, and (D, K) bool
+    where it is known."""
     psi, known = _blurred_course(course, smooth_s)
     t0, t1 = ends[0][None, :] + offsets[:, None], ends[1][None, :] + offsets[:, None]
     ok = (np.interp(t0, course.t_s, known.astype(float), left=0, right=0) == 1) & \
          (np.interp(t1, course.t_s, known.astype(float), left=0, right=0) == 1)
-    return np.where(ok, np.interp(t1, course.t_s, psi) - np.interp(t0, course.t_s, psi), 0.0)
+    return np.interp(t1, course.t_s, psi) - np.interp(t0, course.t_s, psi), ok
 
 
 def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
            dx_raw: np.ndarray, grid: np.ndarray, smooth_s: float) -> _Match:
     dx = _blurred_dx(ends, dx_raw, smooth_s)
     inner = np.isfinite(dx)
+    if inner.sum() < MIN_PAIRS:  # a clip too short for this blur's reach
+        return _Match(float(grid[len(grid) // 2]), np.inf, 0.0, np.inf, None, False, np.inf)
     ends, dx = (ends[0][inner], ends[1][inner]), dx[inner]
     dt = ends[1] - ends[0]
+    every = np.ones(len(dx), bool)
 
-    def increments(offsets: np.ndarray) -> np.ndarray:
-        return _increments(course, smooth_s, ends, offsets)
-
-    def fit(offsets: np.ndarray, scale: float | None):
-        parts = [_fit_block(-increments(offsets[i:i + _BLOCK]), dt, dx, scale, drift_px_s)
+    def fit(offsets: np.ndarray, scale: float | None, pairs: np.ndarray = every):
+        on = (ends[0][pairs], ends[1][pairs])
+        parts = [_fit_block(-_increments(course, smooth_s, on, offsets[i:i + _BLOCK]),
+                            dt[pairs], dx[pairs], scale, drift_px_s)
                  for i in range(0, len(offsets), _BLOCK)]
         return [np.concatenate(p) for p in zip(*parts)]
 
@@ -287,40 +309,59 @@ def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
     at = int(np.argmin(loss))
     if at in (0, len(grid) - 1):
         return _Match(float(grid[at]), np.inf, 0.0, np.inf, None, True, np.inf)
-    best = minimize_scalar(lambda d: fit(np.array([d]), scale)[0][0],
-                           bounds=(grid[at - 1], grid[at + 1]), method="bounded",
-                           options={"xatol": 1e-4})
+    # Near the best grid offset every offset is judged on the same pairs, those whose course is
+    # known all across the refinement: a pair stepping onto the log lowers the loss by itself,
+    # and where the video outlasts the log inside a turn the refinement (and the Jacobian) sat
+    # on such a step, a whole pair's worth early (docs/decisions/clock-offset-from-turns.md).
+    lo, hi = grid[at] - REFINE_S, grid[at] + REFINE_S
+    same = _course_changes(course, smooth_s, ends,
+                           np.arange(lo - STEP_S, hi + 1.5 * STEP_S, STEP_S))[1].all(axis=0)
+    if same.sum() < MIN_PAIRS:
+        return _Match(float(grid[at]), np.inf, 0.0, np.inf, None, False, np.inf)
+    best = minimize_scalar(lambda d: fit(np.array([d]), scale, same)[0][0], bounds=(lo, hi),
+                           method="bounded", options={"xatol": 1e-4})
     offset = float(best.x)
     lags = int(round((LAG_S + 3 * smooth_s) / max(float(np.median(dt)), 1e-9)))
 
-    def solve(d: float):
-        """At offset ``d``: loss, f, w, r, the Jacobian and the covariances (plain, lagged)."""
-        loss_d, f_d, _, w_d, r_d = (v[0] for v in fit(np.array([d]), scale))
-        g_d, g_lo, g_hi = increments(np.array([d, d - STEP_S, d + STEP_S]))
+    def solve(d: float, pairs: np.ndarray):
+        """At offset ``d`` on ``pairs``: loss, f, w, r, the course changes, the Jacobian and the
+        covariances (plain, lagged)."""
+        loss_d, f_d, _, w_d, r_d = (v[0] for v in fit(np.array([d]), scale, pairs))
+        on = (ends[0][pairs], ends[1][pairs])
+        (c_d, c_lo, c_hi), (ok_d, _, _) = _course_changes(course, smooth_s, on,
+                                                           np.array([d, d - STEP_S, d + STEP_S]))
+        g_d = np.where(ok_d, c_d, 0.0)
+        # The derivative holds each pair's known-ness at d: a pair stepping onto the log within
+        # the difference (0 -> its whole course change) is no slope, and read as one it made a
+        # single pair look 7x as sensitive and sigma 6x too small (KITTI turn at 1 Hz).
+        slope = np.where(ok_d, (c_hi - c_lo) / (2 * STEP_S), 0.0)
         # Columns: d/d offset, d/d f, d/d b of the prediction -f g + b dt.
-        jac_d = np.column_stack([-f_d * (g_hi - g_lo) / (2 * STEP_S), -g_d, dt])
+        jac_d = np.column_stack([-f_d * slope, -g_d, dt[pairs]])
         return (loss_d, f_d, w_d, r_d, g_d, jac_d) + _covariances(jac_d, w_d, r_d, lags,
                                                                   drift_px_s)
 
-    best_loss, f, w, r, g, jac, plain, lagged = solve(offset)
+    _, f, w, r, g, jac, plain, lagged = solve(offset, same)
+    on = (ends[0][same], ends[1][same])
     # Each draw's course moves the prediction by -f dg: the fit answers with gain @ (f dg).
     prior = np.diag([0.0, 0.0, (scale / drift_px_s) ** 2])
     gain = np.linalg.pinv(jac.T @ (w[:, None] * jac) + prior) @ (jac * w[:, None]).T
-    dg = [_increments(d, smooth_s, ends, np.array([offset]))[0] - g for d in draws]
+    dg = [_increments(d, smooth_s, on, np.array([offset]))[0] - g for d in draws]
     gps_var = float(np.mean([(gain[0] @ (f * e)) ** 2 for e in dg])) if dg else 0.0
     noise_share = float(np.mean([e @ e for e in dg]) / max(g @ g, 1e-300)) if dg else 0.0
-    shifts = [gain[0] @ (f * (_increments(k, smooth_s, ends, np.array([offset]))[0] - g))
+    shifts = [gain[0] @ (f * (_increments(k, smooth_s, on, np.array([offset]))[0] - g))
               for k in knives]
     jack_var = (len(shifts) - 1) / len(shifts) * float(np.sum((shifts - np.mean(shifts)) ** 2))
     sigma = float(np.sqrt(max(plain[0, 0], lagged[0, 0]) + max(gps_var, jack_var)
                           + SIGMA_FLOOR_S ** 2))
     inflation = max(sigma ** 2 / max(plain[0, 0], 1e-300), 1.0)
+    # Rivals are judged on the grid's terms: every pair, against the grid's best.
+    best_loss = min(loss[at], fit(np.array([offset]), scale)[0][0])
     rival = None
     for second in _minima(grid, loss, offset):
         if (loss[second] - best_loss) / inflation >= AMBIGUOUS_CHI2:
             break
         # A rival must be a match too: the scene turning with the GPS, f well above zero.
-        there = solve(float(grid[second]))
+        there = solve(float(grid[second]), every)
         if there[1] > MIN_SCALE_T * np.sqrt(max(there[6][1, 1], there[7][1, 1])):
             rival = float(grid[second])
             break

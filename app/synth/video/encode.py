@@ -34,7 +34,11 @@ def write_video(frames_bgr: Iterable[np.ndarray], timestamps_s: np.ndarray, path
                 stream.pix_fmt = "yuv420p" if even else "yuv444p"
                 stream.time_base = TIME_BASE
                 stream.codec_context.time_base = TIME_BASE
-                stream.options = {"crf": str(crf)} if codec.startswith("libx26") else {}
+                # x264's output depends on its thread count, which defaults to the machine's
+                # cores: pinned, a bundle is the same bytes on every machine (CI's 3 threads once
+                # moved a real clip's clock offset past a test's bound where 2 did not).
+                stream.options = {"crf": str(crf), "threads": "2"} \
+                    if codec.startswith("libx26") else {}
             frame = av.VideoFrame.from_ndarray(bgr, format="bgr24")
             frame.pts = int(round(t[i] / TIME_BASE))
             frame.time_base = TIME_BASE

@@ -7,13 +7,14 @@ from __future__ import annotations
 import csv
 import io
 import zipfile
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
 from app.pipeline.bundle.video.motion import ImageMotion
-from app.pipeline.geometry.clock_offset import estimate_clock_offset
+from app.pipeline.geometry.clock_offset import _Match, _refusal, estimate_clock_offset
 from app.pipeline.geometry.geodesy import frame_at
 
 STEP_S = 0.005
@@ -85,6 +86,44 @@ def test_an_s_bend_in_a_short_clip_is_a_turn():
     got = estimate_clock_offset(mid, dx, t_fix, fixes, prior_offset_s=0.0, search_s=2.0, dt_s=dt)
     assert got.offset_s is not None, got.reason
     assert abs(got.offset_s - 1.0) < 0.1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_log_that_ends_inside_the_turn_is_not_claimed_tight(seed):
+    # The video (GPS time 5.5-11.5 s) outlasts a 10 Hz log that stops at 9.4 s, inside the turn
+    # (5.5-10.5 s): an offset that puts one more pair onto the log lowers the loss by itself.
+    # Before the same pairs judged every offset near the best, this claimed -0.18 to -0.28 s
+    # +- 0.02 s (the offset sat on such a step and the Jacobian read the step as slope); now
+    # -0.13 +- 0.07, -0.03 +- 0.05, -0.09 +- 0.05 s. (A log stopping at 9.0 s still leaves
+    # -0.11 to -0.19 s at 2-3.8 sigma: docs/decisions/clock-offset-from-turns.md.)
+    mid, dx, dt, t_fix, fixes = _journey(5.5, 10, 0.2, seed=seed, turns_deg=(90.0,),
+                                         turn_at_s=(8.0,), video_s=6.0, log_s=14.0)
+    on_log = (t_fix > 3.0) & (t_fix < 9.4)
+    got = estimate_clock_offset(mid, dx, t_fix[on_log], fixes[on_log], prior_offset_s=9.5,
+                                dt_s=dt)
+    assert got.offset_s is not None, got.reason
+    assert abs(got.offset_s - 5.5) < 4 * got.sigma_s, got.reason
+
+
+def test_five_fixes_are_too_few_to_match_not_a_crash():
+    # Each jackknife leaves a fix out and a smoothing spline needs five: five once raised.
+    mid, dx, dt, t_fix, fixes = _journey(5.5, 1, 0.05, turns_deg=(90.0,), turn_at_s=(8.0,),
+                                         video_s=6.0, log_s=14.0)
+    on_log = (t_fix > 5.0) & (t_fix < 10.0)
+    assert on_log.sum() == 5
+    got = estimate_clock_offset(mid, dx, t_fix[on_log], fixes[on_log], prior_offset_s=9.5,
+                                dt_s=dt)
+    assert got.offset_s is None and "too little to match" in got.reason, got.reason
+
+
+def test_a_match_to_a_course_that_is_mostly_noise_is_refused():
+    # A phone-like log (corpus c2006: 5 Hz, 1.7 m noise): every blur's course changes were more
+    # the fixes' noise than the turns (noise share 0.95-1.27), and the most blurred matched 5.5 s
+    # off, 16 sigma, with f 64 px where the lens has 102 (at the motion's 480 px): refused now.
+    noisy = _Match(offset_s=-5.63, sigma_s=0.35, f_px=64.0, f_sigma_px=12.0, second_s=None,
+                   at_edge=False, noise_share=1.27)
+    assert "mostly noise" in _refusal(noisy, prior_offset_s=-1.1)
+    assert _refusal(replace(noisy, noise_share=0.76), prior_offset_s=-1.1) is None
 
 
 def test_one_turn_filmed_against_two_alike_is_ambiguous():
