@@ -77,7 +77,7 @@ NOISE_DRAWS = 8
 JACKKNIFE_GROUPS = 8
 MAX_NOISE_SHARE = 0.1
 # Beyond this the fixes' noise moves the course more than the turns do: whatever matches it is
-# noise (a phone's log at walking pace matched 5.5 s off, its f a tenth of the lens's).
+# noise (a phone-like 5 Hz log, corpus c2006, matched 5.5 s off with f 64 px for a lens of 102).
 MAX_NOISY_SHARE = 1.0
 SIGMA_FLOOR_S = 0.01  # below what noise-free synthetic journeys are matched to (0.002-0.006 s)
 _BLOCK = 64  # offsets evaluated together (memory: _BLOCK x K floats per array)
@@ -114,6 +114,11 @@ class _Match:
     second_s: float | None  # a rival minimum's offset, None: none close
     at_edge: bool
     noise_share: float  # the fixes' noise in the course changes matched, over their power
+
+    @staticmethod
+    def none(offset_s: float, *, at_edge: bool = False) -> "_Match":
+        """No fit at ``offset_s``: f 0 +- inf, refused as too little signal (or at the edge)."""
+        return _Match(offset_s, np.inf, 0.0, np.inf, None, at_edge, np.inf)
 
 
 def estimate_clock_offset(t_video_s: np.ndarray, dx_px: np.ndarray, t_gps_s: np.ndarray,
@@ -286,7 +291,7 @@ def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
     dx = _blurred_dx(ends, dx_raw, smooth_s)
     inner = np.isfinite(dx)
     if inner.sum() < MIN_PAIRS:  # a clip too short for this blur's reach
-        return _Match(float(grid[len(grid) // 2]), np.inf, 0.0, np.inf, None, False, np.inf)
+        return _Match.none(float(grid[len(grid) // 2]))
     ends, dx = (ends[0][inner], ends[1][inner]), dx[inner]
     dt = ends[1] - ends[0]
     every = np.ones(len(dx), bool)
@@ -308,7 +313,7 @@ def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
     loss = fit(grid, scale)[0]
     at = int(np.argmin(loss))
     if at in (0, len(grid) - 1):
-        return _Match(float(grid[at]), np.inf, 0.0, np.inf, None, True, np.inf)
+        return _Match.none(float(grid[at]), at_edge=True)
     # Near the best grid offset every offset is judged on the same pairs, those whose course is
     # known all across the refinement: a pair stepping onto the log lowers the loss by itself,
     # and where the video outlasts the log inside a turn the refinement (and the Jacobian) sat
@@ -317,7 +322,7 @@ def _match(course: _Course, draws: list[_Course], knives: list[_Course], ends,
     same = _course_changes(course, smooth_s, ends,
                            np.arange(lo - STEP_S, hi + 1.5 * STEP_S, STEP_S))[1].all(axis=0)
     if same.sum() < MIN_PAIRS:
-        return _Match(float(grid[at]), np.inf, 0.0, np.inf, None, False, np.inf)
+        return _Match.none(float(grid[at]))
     best = minimize_scalar(lambda d: fit(np.array([d]), scale, same)[0][0], bounds=(lo, hi),
                            method="bounded", options={"xatol": 1e-4})
     offset = float(best.x)
