@@ -409,7 +409,9 @@ def _add_fleet_parser(bench_sub) -> None:
         "fleet", help="a camera calibrated jointly from its journeys, on a fleet corpus",
         description="Calibrates each journey of a fleet corpus (`signmap synth corpus "
         "--cameras`) alone, then each camera jointly from its journeys, after each journey, "
-        "beside the consensus of its calibrations; writes <date>-fleet<tag>.md/.json.")
+        "beside the consensus of its calibrations, and each camera's first and second journey "
+        "side by side (the second self-calibrating, and checking the camera the first "
+        "calibrated on its turn); writes <date>-fleet<tag>.md/.json.")
     f.add_argument("--corpus", type=Path, required=True, help="the fleet corpus directory")
     f.add_argument("--half", choices=("tuning", "check"), help="one half only (by camera)")
     f.add_argument("--keep", type=Path, required=True, metavar="DIR",

@@ -67,7 +67,8 @@ def add_parsers(sub) -> None:
                    "(default: OUT with the suffix .report.json, e.g. signs.report.json)")
     p.add_argument("--calibration", default=None, metavar="CAMERA.json",
                    help="this camera's calibration, a JSON object {fx, fy, cx, cy, k1, k2}; "
-                   "used when the journey cannot calibrate itself, e.g. it has no turn")
+                   "checked on the journey's turn and used when the turn confirms it (else the "
+                   "journey calibrates itself), and used unchecked when it has no turn")
     p.add_argument("--workdir", default=None,
                    help="keep the intermediate files (extracted frames, reconstructions) in this "
                    "directory (default: a temporary one, deleted at the end)")

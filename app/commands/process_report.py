@@ -29,6 +29,8 @@ def report(result: JourneyResult, warnings: Sequence[str] = ()) -> dict:
         "warnings": list(warnings),
         "calibration": {"source": cal.source, **cal.camera.params(),
                         "stage1": cal.stage1.params() if cal.stage1 else None,
+                        # "checked": what the journey's turn measured of the camera it used.
+                        "measured": cal.measured.params() if cal.measured else None,
                         "n_images": cal.n_images, "n_registered": cal.n_registered,
                         "reprojection_error_px": cal.reprojection_error_px,
                         "rotation_deg": cal.rotation_deg, "windows": cal.windows,

@@ -217,6 +217,14 @@ class PipelineConfig(BaseModel):
 
     reuse_known_calibration: bool = Field(
         False, description="skip self-calibration when a calibration of this camera is known")
+    check_known_calibration: bool = Field(
+        True, description="a journey whose camera is calibrated maps its turn with that "
+        "calibration held and uses it when the turn confirms it, instead of self-calibrating "
+        "(cameras.check_on_turn)")
+    camera_check_max_rel: float = Field(
+        0.03, gt=0.0, description="the turn confirms the camera when its own estimate is this "
+        "close: fx, fy relatively, cx, cy as a share of the image size (as the service's "
+        "calibration_flag_rel)")
 
     # Self-calibration acceptance.
     min_turn_rotation_deg: float = Field(20.0, description="rotation a window needs to calibrate")

@@ -21,6 +21,7 @@ import numpy as np
 
 from app.pipeline.colmap.sfm import SfmRun, WindowRequest, WindowResult
 from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
+from app.pipeline.cameras import check_on_turn
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry import antenna, geodesy, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
@@ -163,7 +164,8 @@ def process_journey(journey: Journey, config: PipelineConfig, workdir: Path, *,
                     known_camera: CameraModel | None = None, progress: ProgressFn = no_progress,
                     verbose: bool = False) -> JourneyResult:
     """Run every stage on ``journey``. ``known_camera``: an earlier calibration of this camera_id,
-    used when the journey cannot calibrate itself (no turn). Raises PipelineError with a reason
+    checked on the journey's turn (``cameras.check_on_turn``) and used when the turn confirms
+    it or the journey cannot calibrate itself (no turn). Raises PipelineError with a reason
     and the reports of the stages that ran (``PipelineError.report``)."""
     recon = reconstruct(journey, config, workdir, known_camera=known_camera, progress=progress,
                         verbose=verbose)
@@ -383,6 +385,27 @@ def _map_candidate(job: _Job, candidates: _CandidateProgress, window: Calibratio
     return done.windows[0]
 
 
+def _check_stored(job: _Job, window: CalibrationWindow,
+                  stored: CameraModel) -> check_on_turn.CameraCheck:
+    """The camera's stored calibration checked on ``window`` (``cameras.check_on_turn``). Its
+    SIFT goes into the journey's ``SHARED_SIFT``: a self-calibration after it extracts none of
+    these frames again."""
+    config, names = job.config, job.names
+    step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
+    first, last = window.frame_idx[0], window.frame_idx[-1]
+    job.clock.within("calibrate", 0.0, f"checking the stored calibration on {window.label}")
+    stage = StageSfm("calibrate", job.workdir / f"sfm_check_{first}_{last}", job.journey,
+                     window.frame_idx, step=step, front_end=config.calib_front_end,
+                     config=config, verbose=job.verbose,
+                     feature_cache=job.workdir / SHARED_SIFT if config.calib_share_features
+                     else None)
+    request = WindowRequest(image_names=[names[i] for i in window.frame_idx], camera=stored,
+                            check=True)
+    done = stage.run([request], stored)
+    job.clock.add_sfm("calibrate", done, [f"{first}-{last}"])
+    return check_on_turn.judge(stored, window, done.windows[0], config)
+
+
 def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel,
                       ego_sfm: StageSfm) -> list[ego_motion.WindowPoses]:
     """The ego_motion stage: the windows around the signs mapped with the calibrated camera."""
@@ -542,7 +565,8 @@ def known_camera_used(camera_id: str) -> str:
 
 def _calibrate(job: _Job, calib_windows: list[CalibrationWindow],
                known_camera: CameraModel | None, entry: _Entry) -> Calibration:
-    """Self-calibration on the turns, or the stored calibration of the camera when there are no
+    """The stored calibration of the camera when its turn confirms it (``check_on_turn``),
+    else self-calibration on the turns; the stored calibration unchecked when there are no
     candidate windows (none found, or ``reuse_known_calibration``) or every candidate failed.
     Fills in the calibrate stage's report ``entry``."""
     journey, config = job.journey, job.config
@@ -552,6 +576,13 @@ def _calibrate(job: _Job, calib_windows: list[CalibrationWindow],
                          if config.reuse_known_calibration else
                          f"{stored}: no candidate window to self-calibrate on")
         return Calibration(known_camera, "supplied")
+    if known_camera is not None and config.check_known_calibration:
+        check = _check_stored(job, calib_windows[0], known_camera)
+        log.info("journey %s: %s", journey.camera_id, check.summary())
+        if check.confirmed:
+            entry.summary = check.summary()
+            return check.calibration()
+        entry.details.append(check.summary() + "; self-calibrating")
     candidates = _CandidateProgress(job.clock)
     try:
         calib = calibrate.self_calibrate(

@@ -216,17 +216,24 @@ class Journey:
 INTRINSICS_STD = ("fx", "fy", "cx", "cy", "k1", "k2")
 
 
+# ``Calibration.source`` of a journey given the camera's stored calibration (checked or not).
+STORED_SOURCES = ("supplied", "checked")
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Outcome of self-calibration (or of reusing a stored calibration).
 
-    ``source`` is ``"self"`` when this journey calibrated itself, ``"supplied"`` when an earlier
-    calibration of the same ``camera_id`` was used: the journey could not calibrate. (The
-    manifest's camera hint only seeds self-calibration's first focal length.)
+    ``source`` is ``"self"`` when this journey calibrated itself, ``"checked"`` when its turn
+    confirmed an earlier calibration of the same ``camera_id`` (``cameras.check_on_turn``), which
+    ``camera`` is, and ``"supplied"`` when that earlier calibration was used unchecked (the
+    journey has no turn, or could not calibrate). (The manifest's camera hint only seeds
+    self-calibration's first focal length.)
     """
 
     camera: CameraModel
     source: str
+    measured: CameraModel | None = None  # "checked": the checked window's own stage-2 camera
     stage1: CameraModel | None = None
     n_images: int = 0
     n_registered: int = 0
@@ -241,8 +248,13 @@ class Calibration:
     # () when unknown.
     intrinsics_std: tuple[float, ...] = ()
     # The accepted window's reconstruction, for a camera's joint calibration
-    # (``steps.calibrate_jointly``); None when not kept (a stored calibration).
+    # (``cameras.calibrate_jointly``); None when not kept (a stored calibration).
     observations: "WindowObservations | None" = None
+
+    @property
+    def turn_estimate(self) -> CameraModel | None:
+        """What this journey's own turn measured of the camera; None: it measured nothing."""
+        return self.camera if self.source == "self" else self.measured
 
 
 @dataclass(frozen=True)

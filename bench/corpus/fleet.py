@@ -1,12 +1,16 @@
 """``signmap bench fleet``: issue 66's tables on a fleet corpus (``signmap synth corpus
 --cameras``): each journey calibrated alone, and each camera calibrated jointly from its
-journeys (``steps.calibrate_jointly``) beside the consensus the service kept before it (the mean
+journeys (``cameras.calibrate_jointly``) beside the consensus the service kept before it (the mean
 of the largest group of agreeing calibrations), in the same run.
 
 Each journey's self-calibration runs once (``--calibrate-only``'s pipeline, in a fresh process)
 and is kept in ``--keep DIR`` as ``<name>.npz`` (its accepted window's reconstruction) and
 ``<name>.json`` (the calibration or the error), so the joint fits can be run again, with other
 knobs, in minutes.
+
+Each camera's second journey with a turn is also run given the camera's calibration after its
+first (``cameras.check_on_turn``: the stored camera checked on the turn), beside its own
+self-calibration above: time and outcome side by side (``<name>.check.json`` in ``--keep``).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.pipeline.steps.calibrate_jointly import (CameraWindow, calibrate_jointly,
+from app.pipeline.cameras.calibrate_jointly import (CameraWindow, calibrate_jointly,
                                                   largest_agreeing)
 from app.pipeline.types import CameraModel, WindowObservations
 from bench.corpus.fleet_report import render_markdown
@@ -28,23 +32,31 @@ from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config,
 from bench.paper.run_pipeline import RunTask, run_isolated
 
 
+def _calibrate(corpus_dir: Path, entry: dict, known: CameraModel | None = None):
+    """``entry``'s journey run up to its calibration (in a fresh process), given the camera
+    ``known``: (error, result, calibrate stage seconds)."""
+    name = entry["name"]
+    jdir = Path(corpus_dir) / entry.get("dir", name)
+    with tempfile.TemporaryDirectory(prefix=f"bench-fleet-{name}-") as tmp:
+        task = RunTask(name, jdir / "bundle.zip", Path(tmp), pipeline_config({}).model_dump(),
+                       calibrate_only=True, known_camera=known)
+        try:
+            out = run_isolated(task)
+            return out.error, out.result, out.timings_s.get("calibrate")
+        except Exception as exc:  # noqa: BLE001 - a crash in the child is a failed record
+            return f"{type(exc).__name__}: {exc}", None, None
+
+
 def calibrate_alone(corpus_dir: Path, entry: dict, keep_dir: Path) -> dict:
     """The journey's own self-calibration (kept in ``keep_dir``; run when not kept yet)."""
     name = entry["name"]
     record_path = keep_dir / f"{name}.json"
     if record_path.exists():
         return json.loads(record_path.read_text())
-    jdir = Path(corpus_dir) / entry.get("dir", name)
-    with tempfile.TemporaryDirectory(prefix=f"bench-fleet-{name}-") as tmp:
-        task = RunTask(name, jdir / "bundle.zip", Path(tmp),
-                       pipeline_config({}).model_dump(), calibrate_only=True)
-        try:
-            out = run_isolated(task)
-            error, result = out.error, out.result
-        except Exception as exc:  # noqa: BLE001 - a crash in the child is a failed record
-            error, result = f"{type(exc).__name__}: {exc}", None
+    error, result, calibrate_s = _calibrate(corpus_dir, entry)
     record = {"name": name, "camera_id": entry["params"]["camera_id"],
-              "index": entry["params"]["journey_index"], "half": entry["half"], "error": error}
+              "index": entry["params"]["journey_index"], "half": entry["half"], "error": error,
+              "calibrate_s": calibrate_s}
     cal = result.calibration if result is not None else None
     if cal is not None and cal.source == "self" and cal.observations is not None:
         record.update(camera=cal.camera.params(), intrinsics_std=list(cal.intrinsics_std),
@@ -54,6 +66,41 @@ def calibrate_alone(corpus_dir: Path, entry: dict, keep_dir: Path) -> dict:
     tmp_path.write_text(json.dumps(record, indent=1))
     tmp_path.replace(record_path)
     return record
+
+
+def checked_second(corpus_dir: Path, entry: dict, first: dict, keep_dir: Path) -> dict:
+    """``entry``'s journey given the calibration of ``first`` (the camera's first calibrated
+    journey's record) as its camera's stored one (kept in ``keep_dir``)."""
+    path = keep_dir / f"{entry['name']}.check.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    stored = CameraModel.from_params(first["width"], first["height"], first["camera"])
+    error, result, calibrate_s = _calibrate(corpus_dir, entry, stored)
+    cal = result.calibration if result is not None else None
+    true = entry["params"]
+    record = {"name": entry["name"], "first": first["name"], "error": error,
+              "calibrate_s": calibrate_s, "source": cal.source if cal else None,
+              "errors": camera_errors(cal.camera.params(), true) if cal else None,
+              "turn_errors": (camera_errors(cal.turn_estimate.params(), true)
+                              if cal is not None and cal.turn_estimate is not None else None),
+              "summary": next((r.summary for r in result.report if r.stage == "calibrate"), "")
+              if result is not None else ""}
+    path.write_text(json.dumps(record, indent=1))
+    return record
+
+
+def second_journeys(corpus_dir: Path, entries: list[dict], records: list[dict],
+                    keep_dir: Path) -> list[dict]:
+    """For one camera (``records`` in journey order): its first calibrated journey, and the
+    next with a turn run both ways (its self-calibration, ``records``'; and checked)."""
+    first = next((r for r in records if r.get("camera")), None)
+    second = next((r for r in records
+                   if first is not None and r["index"] > first["index"] and r["turns"]), None)
+    if second is None:
+        return []
+    entry = next(e for e in entries if e["name"] == second["name"])
+    return [{"camera_id": first["camera_id"], "first": first, "self": second,
+             "checked": checked_second(corpus_dir, entry, first, keep_dir)}]
 
 
 def _window(record: dict, keep_dir: Path) -> CameraWindow:
@@ -108,14 +155,17 @@ def run_fleet(corpus_dir: Path, out_dir: Path, keep_dir: Path, *, half: str | No
     cameras = {}
     for record in journeys:
         cameras.setdefault(record["camera_id"], []).append(record)
-    history = []
+    history, seconds = [], []
     for camera_id, records in cameras.items():
         true = next(e["params"] for e in entries if e["params"]["camera_id"] == camera_id)
-        history += camera_rows(sorted(records, key=lambda r: r["index"]), true, keep_dir,
-                               agree_rel)
+        ordered = sorted(records, key=lambda r: r["index"])
+        history += camera_rows(ordered, true, keep_dir, agree_rel)
         log(f"{camera_id}: {history[-1]['joint_errors'] if history else 'no calibration'}")
+        seconds += second_journeys(corpus_dir, entries, ordered, keep_dir)
+        if seconds and seconds[-1]["camera_id"] == camera_id:
+            log(f"{camera_id} second journey checked: {seconds[-1]['checked']['summary'][:100]}")
     report = {"corpus": str(corpus_dir), "half": half, "agree_rel": agree_rel,
-              "journeys": journeys, "history": history}
+              "journeys": journeys, "history": history, "second_journeys": seconds}
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"{date.today().isoformat()}-fleet{'-' + tag if tag else ''}"
     (out_dir / f"{stem}.json").write_text(json.dumps(report, indent=1))

@@ -108,11 +108,42 @@ def history_rows(history: list[dict]) -> list[str]:
     return out
 
 
+def _fx(errors: dict | None) -> str:
+    return f"{_fmt(errors['fx_pct'])} %" if errors else "-"
+
+
+def second_journey_rows(seconds: list[dict]) -> list[str]:
+    """Each camera's first journey and its second (with a turn) side by side: the second
+    self-calibrating as a new camera's does, and checking the camera the first calibrated
+    (``cameras.check_on_turn``); the time ratio is of the same run."""
+    out = ["| camera | first journey: calibrate s (fx) | second, self-calibrating: s (fx) | "
+           "second, checked: s | outcome | camera used fx | its turn's fx |",
+           "| --- | --- | --- | --- | --- | --- | --- |"]
+    ratios, confirmed = [], 0
+    for row in seconds:
+        first, own, checked = row["first"], row["self"], row["checked"]
+        outcome = {"checked": "confirmed", "self": "not confirmed: self-calibrated",
+                   "supplied": "unchecked"}.get(checked["source"], checked["error"] or "failed")
+        confirmed += checked["source"] == "checked"
+        if own.get("calibrate_s") and checked.get("calibrate_s"):
+            ratios.append(checked["calibrate_s"] / own["calibrate_s"])
+        out.append(f"| {row['camera_id']} | {_fmt(first.get('calibrate_s'), 1, False)} "
+                   f"({_fx(first.get('errors'))}) | {_fmt(own.get('calibrate_s'), 1, False)} "
+                   f"({_fx(own.get('errors'))}) | {_fmt(checked.get('calibrate_s'), 1, False)} | "
+                   f"{outcome} | {_fx(checked['errors'])} | {_fx(checked['turn_errors'])} |")
+    out += ["", f"Confirmed {confirmed} of {len(seconds)}; calibrate time checked / "
+            f"self-calibrating, median "
+            f"{_fmt(np.median(ratios) if ratios else None, 2, False)}, worst "
+            f"{_fmt(max(ratios) if ratios else None, 2, False)} (per camera, same run)."]
+    return out
+
+
 def render_markdown(report: dict) -> str:
     parts = [f"# Fleet calibration: {report['corpus']} ({report['half'] or 'both halves'})", "",
              "Command: `signmap bench fleet --corpus ... "
              + (f"--half {report['half']}" if report["half"] else "") + "`", "",
              *alone_rows(report["journeys"]), "", *camera_bar_rows(report["history"]), "",
              *camera_table(report["history"], report["journeys"]), "",
-             *history_rows(report["history"]), ""]
+             *history_rows(report["history"]), "",
+             *second_journey_rows(report.get("second_journeys", [])), ""]
     return "\n".join(parts)

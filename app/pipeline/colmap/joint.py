@@ -1,5 +1,5 @@
 """One bundle adjustment over many calibrated windows that share a camera (issue 66's joint
-calibration; the choice of windows is ``steps.calibrate_jointly``'s). Runs in a COLMAP child
+calibration; the choice of windows is ``cameras.calibrate_jointly``'s). Runs in a COLMAP child
 process (``fit_jointly``), as ``colmap.sfm`` does.
 
 Each window is a separate part of one reconstruction, in its own model frame and scale: its poses

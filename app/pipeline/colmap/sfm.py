@@ -39,11 +39,14 @@ COLMAP_PIXEL_OFFSET = 0.5
 @dataclass(frozen=True, kw_only=True)
 class WindowRequest:
     """One window to map. ``camera``: the intrinsics to hold fixed, or with ``calibrate`` the
-    starting point of self-calibration (its focal length and image size)."""
+    starting point of self-calibration (its focal length and image size). With ``check``, the
+    window is mapped with ``camera`` held and stage 2 then frees all six intrinsics from it: a
+    stored calibration checked on a turn (``cameras.check``)."""
 
     image_names: list[str]
     camera: CameraModel
     calibrate: bool = False
+    check: bool = False
     # Two of ``image_names`` to start the reconstruction from (None: COLMAP's choice, which favours
     # the most matched pair: neighbouring frames whose short forward baseline can fix a wrong
     # relative pose that bundle adjustment never leaves). ``more_init_pairs`` are tried next, in
@@ -407,7 +410,8 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
     stage1 = camera_model(next(iter(rec.cameras.values())))
     std, moves, unprobed = None, [], None
     t_refine = time.perf_counter()
-    if window.calibrate:
+    stage2_after = window.calibrate or window.check
+    if stage2_after:
         from app.pipeline.colmap.refine import probe_focal, refine_all_intrinsics
 
         def stage2(rec) -> np.ndarray:
@@ -417,17 +421,19 @@ def _map_window(pycolmap, job: SfmJob, database: Path, index: int,
                 aspect_sigma=job.mapping.aspect_prior_sigma, threads=job.process.threads)
 
         std = stage2(rec)
-        if job.mapping.stage2_probe > 0:
+        # The probe escapes a wrong minimum a free-intrinsics start fell into; a check starts at
+        # the camera's own.
+        if job.mapping.stage2_probe > 0 and window.calibrate:
             unprobed = camera_model(next(iter(rec.cameras.values())))
             rec, moves, probed_std = probe_focal(
                 pycolmap, rec, step=job.mapping.stage2_probe, max_moves=3, refine=stage2,
                 max_points=job.mapping.stage2_probe_points, threads=job.process.threads)
             std = std if probed_std is None else probed_std
     result = _window_result(rec, window.image_names, stage1 if window.calibrate else None)
-    result.refine_s = round(time.perf_counter() - t_refine, 3) if window.calibrate else 0.0
+    result.refine_s = round(time.perf_counter() - t_refine, 3) if stage2_after else 0.0
     result.probe_moves = tuple(moves)
     result.unprobed_camera = unprobed if moves else None
-    if window.calibrate:
+    if stage2_after:
         result.observations = window_observations(rec, result.image_names)
     if std is not None:
         result.intrinsics_std = tuple(float(v) for v in std)

@@ -97,7 +97,8 @@ class JourneyOut(BaseModel):
                           "kept)")
     calibration: CalibrationOut | None = Field(description="the camera model used, once done")
     calibration_source: str | None = Field(
-        description="'self' (this journey calibrated the camera), 'supplied' (an earlier "
+        description="'self' (this journey calibrated the camera), 'checked' (its turn confirmed "
+                    "the camera's stored calibration, which it used), 'supplied' (an earlier "
                     "calibration of the same camera_id), 'prior' (the manifest's hint)")
     n_frames: int
     n_signs: int | None

@@ -216,7 +216,7 @@ class CalibrationRow(CameraColumns, Base):
 
 class CameraFitRow(CameraColumns, Base):
     """A camera's joint calibration over the turn windows of an epoch's self-calibrations
-    (``jobs.camera_fit``; ``steps.calibrate_jointly``). The newest of an epoch is what its later
+    (``jobs.camera_fit``; ``cameras.calibrate_jointly``). The newest of an epoch is what its later
     journeys are given, unless the epoch has a registered calibration. ``inputs``: the ids of
     the calibrations it considered, sorted (the same inputs are not fitted twice); ``used``
     those in the fit; ``left_out`` id -> why not; ``rms_px`` id -> its window's reprojection

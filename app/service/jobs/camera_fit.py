@@ -4,7 +4,7 @@ item 1; docs/decisions/camera-joint-calibration.md).
 Each self-calibration stores its accepted turn window with it (``calibrations.window``). After a
 journey's self-calibration is stored, ``refit`` adjusts the newest windows of its epoch
 (``calibration_consensus_newest`` of them) together with one shared camera
-(``steps.calibrate_jointly``) and stores the result as a ``camera_fits`` row, which
+(``cameras.calibrate_jointly``) and stores the result as a ``camera_fits`` row, which
 ``state.stored_calibration`` gives the camera's later journeys in place of the consensus of
 their calibrations. An epoch with a registered calibration keeps it as given; an epoch with one
 window has nothing to fit (its calibration is that one).
@@ -22,7 +22,7 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session, undefer
 
-from app.pipeline.steps.calibrate_jointly import CameraWindow, calibrate_jointly
+from app.pipeline.cameras.calibrate_jointly import CameraWindow, calibrate_jointly
 from app.pipeline.types import INTRINSICS_STD
 from app.service.db.models import CalibrationRow, CameraFitRow
 from app.service.db.session import session_scope

@@ -25,20 +25,22 @@ dies in between leaves it queued, as an upload that died before its submit (the 
 worker's sweep submits every queued journey; Celery has no such sweep).
 
 * **Re-processing** (``reprocess_superseded``): a registered calibration supersedes the one the
-  camera's done journeys were given. Those journeys (calibration source "supplied", frames of the
-  registration's size, a calibration other than the registered one) go back to ``queued`` with
-  stage ``reprocessing``, a ``message`` naming the epoch and ``reprocess_epoch`` set, and are
-  submitted to the normal queue; each run claims them as any other (``state.claim``). Until the
-  new run stores its result they keep serving their earlier signs (``models.serves_result``); a
-  re-processing run that fails leaves the earlier result done (``state.fail``). Selected and
-  marked in the camera's lock, so two triggers queue a journey once; a registration of the same
-  values finds nothing left to re-process. A run that stores a result with a calibration
-  registered meanwhile superseded checks itself the same way (``jobs.run``). Self-calibrated
-  journeys keep their own result, and a moving consensus of self-calibrations triggers nothing.
-  A lens change (``state.lens_change``) supersedes the old lens's calibration for the journeys
-  uploaded after the new epoch's first journey (docs/decisions/registered-calibration.md, "Lens
-  changes"); a joint calibration (``jobs.camera_fit``) that moved by more than its sigma from
-  what a journey was given supersedes it (docs/decisions/camera-joint-calibration.md).
+  camera's done journeys were given. Those journeys (calibration source "supplied" or "checked",
+  frames of the registration's size, a calibration other than the registered one) go back to
+  ``queued`` with stage ``reprocessing``, a ``message`` naming the epoch and ``reprocess_epoch``
+  set, and are submitted to the normal queue; each run claims them as any other (``state.claim``).
+  Until the new run stores its result they keep serving their earlier signs
+  (``models.serves_result``); a re-processing run that fails leaves the earlier result done
+  (``state.fail``). Selected and marked in the camera's lock, so two triggers queue a journey once;
+  a registration of the same values finds nothing left to re-process. A run that stores a result
+  with a calibration registered meanwhile superseded checks itself the same way (``jobs.run``).
+  Self-calibrated journeys keep their own result (a journey whose turn confirmed the stored
+  calibration, "checked", used the stored one and is re-processed as "supplied" ones are), and a
+  moving consensus of self-calibrations triggers nothing. A lens change (``state.lens_change``)
+  supersedes the old lens's calibration for the journeys uploaded after the new epoch's first
+  journey (docs/decisions/registered-calibration.md, "Lens changes"); a joint calibration
+  (``jobs.camera_fit``) that moved by more than its sigma from what a journey was given supersedes
+  it (docs/decisions/camera-joint-calibration.md).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ from sqlalchemy import select, text, update
 from sqlalchemy.orm import Session
 
 from app.pipeline.bundle.csv_table import CONTROL_CHARS, MAX_TEXT_CHARS
-from app.pipeline.types import CameraModel, StageReport
+from app.pipeline.types import STORED_SOURCES, CameraModel, StageReport
 from app.service.db.models import (CALIBRATION_PARAMS, REPROCESSING, WAITING_FOR_CAMERA,
                                    CalibrationRow, CameraFitRow, JourneyRow)
 from app.service.db.session import session_scope
@@ -421,7 +423,8 @@ def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
     supersedes, or only ``journey_id`` among them; submit them after the commit (None: the
     embedded worker's sweep does). Returns their ids.
 
-    * A registered epoch: those given a calibration (source "supplied") of its frame size
+    * A registered epoch: those given a calibration (source "supplied" or "checked") of its
+      frame size
       other than the registered one.
     * An epoch a lens change started (``state.lens_change``): those given a calibration of its
       frame size that disagrees with the epoch's (beyond ``calibration_flag_rel``: the old
@@ -441,7 +444,7 @@ def reprocess_superseded(url: str, camera_id: str, submit: Submit | None,
             return []
         reference = registered or lens or fit
         where = [JourneyRow.camera_id == camera_id, JourneyRow.status == "done",
-                 JourneyRow.calibration_source == "supplied",
+                 JourneyRow.calibration_source.in_(STORED_SOURCES),
                  JourneyRow.image_width == reference.width,
                  JourneyRow.image_height == reference.height]
         if journey_id is not None:

@@ -130,11 +130,11 @@ def run_journey(journey_id: str, settings: Settings,
         log.info("journey %s: done in %.1f s, %d signs (calibration: %s), stages %s", journey_id,
                  timings_s["total_s"], len(result.signs), result.calibration.source,
                  result.timings_s)
-        if result.calibration.source == "self":
+        if result.calibration.turn_estimate is not None:  # self-calibrated, or checked
             _refit(url, journey_id, camera_id, settings)
             _wake(url, camera_id, size, submit)
             _reprocess_if_superseded(url, camera_id, None, submit, settings)
-        elif result.calibration.source == "supplied":
+        else:
             _reprocess_if_superseded(url, camera_id, journey_id, submit, settings)
     except Superseded:
         log.warning("journey %s: attempt %d was superseded by a newer run; its result is dropped",

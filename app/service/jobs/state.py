@@ -17,6 +17,7 @@ import numpy as np
 from sqlalchemy import and_, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
+from app.pipeline.cameras.check_on_turn import deviation as calibration_deviation
 from app.pipeline.colmap.joint import MAX_POINTS_PER_WINDOW, thinned
 from app.pipeline.types import (INTRINSICS_STD, AntennaEstimate, CameraModel,
                                 Journey as JourneyData, JourneyResult, StageReport,
@@ -271,15 +272,6 @@ def consensus(cameras: list[CameraModel], agree_rel: float
     return CameraModel.from_params(first.width, first.height, mean), members
 
 
-def calibration_deviation(camera: CameraModel, stored: CameraModel) -> dict[str, float]:
-    """How far ``camera`` is from ``stored``: fx and fy relative to ``stored``'s, cx and cy
-    relative to its image width and height."""
-    return {"fx": abs(camera.fx - stored.fx) / stored.fx,
-            "fy": abs(camera.fy - stored.fy) / stored.fy,
-            "cx": abs(camera.cx - stored.cx) / stored.width,
-            "cy": abs(camera.cy - stored.cy) / stored.height}
-
-
 def calibration_agreement(a: CameraModel, b: CameraModel) -> float:
     """The largest of ``calibration_deviation``; inf for calibrations of other image sizes."""
     if (a.width, a.height) != (b.width, b.height):
@@ -321,8 +313,9 @@ def store_result(session: Session, journey_id: str, attempt: int, journey: Journ
         for s in result.signs
     )
     calib = result.calibration
-    if calib.source == "self":
-        cam = calib.camera
+    if (cam := calib.turn_estimate) is not None:
+        # What the journey's own turn measured, whether it used it (self-calibrated) or the
+        # stored calibration it confirmed (checked): the camera's consensus and joint fit take it.
         reason = None
         if epoch is None:
             epoch = current_epoch(session, journey.camera_id) or 1

@@ -512,12 +512,17 @@ def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
                   "journey_index": k, "max_turn_deg": 90.0 if turns else 0.0}
         entries.append({"name": name, "seed": k, "half": "check", "dir": name, "params": params})
         record = {"name": name, "camera_id": "fleet-0001", "index": k, "half": "check",
-                  "error": None if turns else "no turn"}
+                  "error": None if turns else "no turn", "calibrate_s": 20.0}
         if turns:
             own = true.replace(fx=true.fx * scale, fy=true.fy * scale)
             record.update(camera=own.params(), intrinsics_std=[1.0] * 6, width=1280, height=720)
             np.savez_compressed(keep / f"{name}.npz", **turn_window(true, k).arrays())
         (keep / f"{name}.json").write_text(json.dumps(record))
+    # The second journey's run given the first's calibration, kept too: it confirmed it.
+    (keep / "f0001-1.check.json").write_text(json.dumps({
+        "name": "f0001-1", "first": "f0001-0", "error": None, "calibrate_s": 5.0,
+        "source": "checked", "errors": {"fx_pct": 1.5}, "turn_errors": {"fx_pct": -0.4},
+        "summary": "stored calibration confirmed on frames 3-40"}))
     (tmp_path / "corpus.json").write_text(json.dumps({"format": CORPUS_FORMAT,
                                                       "journeys": entries}))
     md = run_fleet(tmp_path, tmp_path / "out", keep, half="check", tag="t")
@@ -529,3 +534,9 @@ def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
     assert "| turning journeys calibrated | 3/3 (100 %) |" in text
     assert "| fx within 0.3 % | 1/1 (100 %) | 0/1 (0 %) |" in text
     assert "| fleet-0001 | 4 (3) | 0 |" in text
+    # The first journey and the second side by side: self-calibrating, and checked.
+    assert [(s["first"]["name"], s["self"]["name"]) for s in report["second_journeys"]] == [
+        ("f0001-0", "f0001-1")]
+    assert ("| fleet-0001 | 20.0 (+1.50 %) | 20.0 (-1.00 %) | 5.0 | confirmed | +1.50 % | "
+            "-0.40 % |") in text
+    assert "Confirmed 1 of 1; calibrate time checked / self-calibrating, median 0.25" in text

@@ -1,4 +1,4 @@
-"""A camera's joint calibration over several journeys' windows (``steps.calibrate_jointly``,
+"""A camera's joint calibration over several journeys' windows (``cameras.calibrate_jointly``,
 ``colmap.joint``), on windows made by projecting points through a known camera: the adjustment
 is COLMAP's own, run for real."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.pipeline.steps.calibrate_jointly import CameraWindow, calibrate_jointly
+from app.pipeline.cameras.calibrate_jointly import CameraWindow, calibrate_jointly
 from app.pipeline.types import CameraModel
 from tests.utils.results.turn_windows import turn_window
 

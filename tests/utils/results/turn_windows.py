@@ -1,5 +1,5 @@
 """Calibrated turn windows made without COLMAP's mapper: what a joint calibration adjusts
-(``steps.calibrate_jointly``), for tests of it and of the service that keeps them."""
+(``cameras.calibrate_jointly``), for tests of it and of the service that keeps them."""
 
 from __future__ import annotations
 
