@@ -368,13 +368,8 @@ def _map_candidate(job: _Job, candidates: _CandidateProgress, window: Calibratio
     succeeds, and the others' features would be wasted. Frames an earlier candidate extracted
     come from the journey's ``SHARED_SIFT``."""
     config, names = job.config, job.names
-    step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
     first, last = window.frame_idx[0], window.frame_idx[-1]
-    stage = StageSfm("calibrate", job.workdir / f"sfm_calibrate_{first}_{last}", job.journey,
-                     window.frame_idx, step=step, front_end=config.calib_front_end,
-                     config=config, verbose=job.verbose,
-                     feature_cache=job.workdir / SHARED_SIFT if config.calib_share_features
-                     else None)
+    stage = _window_stage(job, window, f"sfm_calibrate_{first}_{last}")
     request = WindowRequest(
         image_names=[names[i] for i in window.frame_idx], camera=start, calibrate=True,
         retry_focals_px=tuple(f * start.width for f in config.calib_retry_focal_factors),
@@ -390,20 +385,25 @@ def _check_stored(job: _Job, window: CalibrationWindow,
     """The camera's stored calibration checked on ``window`` (``cameras.check_on_turn``). Its
     SIFT goes into the journey's ``SHARED_SIFT``: a self-calibration after it extracts none of
     these frames again."""
-    config, names = job.config, job.names
-    step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
     first, last = window.frame_idx[0], window.frame_idx[-1]
     job.clock.within("calibrate", 0.0, f"checking the stored calibration on {window.label}")
-    stage = StageSfm("calibrate", job.workdir / f"sfm_check_{first}_{last}", job.journey,
-                     window.frame_idx, step=step, front_end=config.calib_front_end,
-                     config=config, verbose=job.verbose,
-                     feature_cache=job.workdir / SHARED_SIFT if config.calib_share_features
-                     else None)
-    request = WindowRequest(image_names=[names[i] for i in window.frame_idx], camera=stored,
-                            check=True)
+    stage = _window_stage(job, window, f"sfm_check_{first}_{last}")
+    request = WindowRequest(image_names=[job.names[i] for i in window.frame_idx],
+                            camera=stored, check=True)
     done = stage.run([request], stored)
     job.clock.add_sfm("calibrate", done, [f"{first}-{last}"])
-    return check_on_turn.judge(stored, window, done.windows[0], config)
+    return check_on_turn.judge(stored, window, done.windows[0], job.config)
+
+
+def _window_stage(job: _Job, window: CalibrationWindow, name: str) -> StageSfm:
+    """COLMAP's work on one calibration window's frames, under ``name`` in the work directory;
+    frames another window extracted come from the journey's ``SHARED_SIFT``."""
+    config = job.config
+    step = int(max(1, np.min(np.diff(window.frame_idx)))) if len(window.frame_idx) > 1 else 1
+    return StageSfm("calibrate", job.workdir / name, job.journey, window.frame_idx, step=step,
+                    front_end=config.calib_front_end, config=config, verbose=job.verbose,
+                    feature_cache=job.workdir / SHARED_SIFT if config.calib_share_features
+                    else None)
 
 
 def _ego_motion_stage(job: _Job, the_plan: plan.JourneyPlan, camera: CameraModel,

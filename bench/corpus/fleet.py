@@ -84,7 +84,11 @@ def checked_second(corpus_dir: Path, entry: dict, first: dict, keep_dir: Path) -
               "turn_errors": (camera_errors(cal.turn_estimate.params(), true)
                               if cal is not None and cal.turn_estimate is not None else None),
               "summary": next((r.summary for r in result.report if r.stage == "calibrate"), "")
-              if result is not None else ""}
+              if result is not None else "",
+              # Why the check did not confirm the camera, when it did not.
+              "not_confirmed": next((d for r in result.report if r.stage == "calibrate"
+                                     for d in r.details if d.startswith("stored calibration")),
+                                    None) if result is not None else None}
     path.write_text(json.dumps(record, indent=1))
     return record
 

@@ -131,6 +131,8 @@ def second_journey_rows(seconds: list[dict]) -> list[str]:
                    f"({_fx(first.get('errors'))}) | {_fmt(own.get('calibrate_s'), 1, False)} "
                    f"({_fx(own.get('errors'))}) | {_fmt(checked.get('calibrate_s'), 1, False)} | "
                    f"{outcome} | {_fx(checked['errors'])} | {_fx(checked['turn_errors'])} |")
+    out += [f"\n{row['camera_id']}: {row['checked']['not_confirmed']}" for row in seconds
+            if row["checked"].get("not_confirmed")]
     out += ["", f"Confirmed {confirmed} of {len(seconds)}; calibrate time checked / "
             f"self-calibrating, median "
             f"{_fmt(np.median(ratios) if ratios else None, 2, False)}, worst "
