@@ -578,11 +578,12 @@ def _calibrate(job: _Job, calib_windows: list[CalibrationWindow],
         return Calibration(known_camera, "supplied")
     if known_camera is not None and config.check_known_calibration:
         check = _check_stored(job, calib_windows[0], known_camera)
-        log.info("journey %s: %s", journey.camera_id, check.summary())
+        said = check.summary()
+        log.info("journey %s: %s", journey.camera_id, said)
         if check.confirmed:
-            entry.summary = check.summary()
+            entry.summary = said
             return check.calibration()
-        entry.details.append(check.summary() + "; self-calibrating")
+        entry.details.append(said + "; self-calibrating")
     candidates = _CandidateProgress(job.clock)
     try:
         calib = calibrate.self_calibrate(

@@ -28,6 +28,10 @@ from app.pipeline.types import Calibration, CameraModel
 SOURCE = "checked"  # ``Calibration.source`` of a journey that used its checked camera
 
 
+# What ``deviation``'s principal-point shares are of, as a report says them.
+SHARE_OF = {"cx": " of the width", "cy": " of the height"}
+
+
 def deviation(camera: CameraModel, reference: CameraModel) -> dict[str, float]:
     """How far ``camera`` is from ``reference``: fx and fy relative to ``reference``'s, cx and cy
     relative to its image width and height."""
@@ -74,9 +78,8 @@ class CameraCheck:
                 f"{res.reprojection_error_px:.2f} px, its own fx {self.measured.fx:.1f}")
         if self.confirmed:
             worst = max(self.deviation, key=self.deviation.get)
-            of = {"cx": " of the width", "cy": " of the height"}.get(worst, "")
             return (f"stored calibration confirmed on {where} ({told}; largest difference "
-                    f"{worst} {100 * self.deviation[worst]:.2f} %{of})")
+                    f"{worst} {100 * self.deviation[worst]:.2f} %{SHARE_OF.get(worst, '')})")
         return f"stored calibration not confirmed on {where}: {self.why_not} ({told})"
 
 
@@ -97,8 +100,8 @@ def judge(stored: CameraModel, window: CalibrationWindow, result: WindowResult,
         why = f"only {rotation:.0f} deg of rotation: too little to tell one lens from another"
     elif max(dev.values()) > cfg.camera_check_max_rel:
         worst = max(dev, key=dev.get)
-        of = {"cx": " of the width", "cy": " of the height"}.get(worst, "")
-        why = (f"its own estimate differs in {worst} by {100 * dev[worst]:.1f} %{of} "
+        why = (f"its own estimate differs in {worst} by {100 * dev[worst]:.1f} %"
+               f"{SHARE_OF.get(worst, '')} "
                f"(over {100 * cfg.camera_check_max_rel:g} %)")
     else:
         why = ""

@@ -41,7 +41,7 @@ class WindowRequest:
     """One window to map. ``camera``: the intrinsics to hold fixed, or with ``calibrate`` the
     starting point of self-calibration (its focal length and image size). With ``check``, the
     window is mapped with ``camera`` held and stage 2 then frees all six intrinsics from it: a
-    stored calibration checked on a turn (``cameras.check``)."""
+    stored calibration checked on a turn (``cameras.check_on_turn``)."""
 
     image_names: list[str]
     camera: CameraModel

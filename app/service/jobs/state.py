@@ -17,7 +17,7 @@ import numpy as np
 from sqlalchemy import and_, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
-from app.pipeline.cameras.check_on_turn import deviation as calibration_deviation
+from app.pipeline.cameras.check_on_turn import SHARE_OF, deviation as calibration_deviation
 from app.pipeline.colmap.joint import MAX_POINTS_PER_WINDOW, thinned
 from app.pipeline.types import (INTRINSICS_STD, AntennaEstimate, CameraModel,
                                 Journey as JourneyData, JourneyResult, StageReport,
@@ -400,7 +400,7 @@ def lens_change(session: Session, camera_id: str, epoch: int, rule: LensRule) ->
     deviation |= {"cx": (mean.cx - reference.cx) / reference.width,
                   "cy": (mean.cy - reference.cy) / reference.height}
     key = max(deviation, key=lambda k: abs(deviation[k]))
-    of = {"cx": " of the width", "cy": " of the height"}.get(key, "")
+    of = SHARE_OF.get(key, "")
     reason = (f"{len(newest)} journeys agree with each other and differ from {what} by "
               f"{key} {100 * deviation[key]:+.1f} %{of}")
     new_epoch = (current_epoch(session, camera_id) or epoch) + 1
