@@ -396,7 +396,7 @@ def run_fleet_command(args) -> int:
 
     try:
         md = run_fleet(args.corpus, args.out, args.keep, half=args.half,
-                       agree_rel=args.agree_rel, tag=args.tag)
+                       agree_rel=args.agree_rel, tag=args.tag, again=args.again)
     except (ValueError, FileNotFoundError) as exc:
         raise SystemExit(f"signmap bench fleet: {exc}") from exc
     print(md.read_text())
@@ -411,13 +411,17 @@ def _add_fleet_parser(bench_sub) -> None:
         "--cameras`) alone, then each camera jointly from its journeys, after each journey, "
         "beside the consensus of its calibrations, and each camera's first and second journey "
         "side by side (the second self-calibrating, and checking the camera the first "
-        "calibrated on its turn); writes <date>-fleet<tag>.md/.json.")
+        "calibrated on its turn); with --again, every journey in full with its true camera and "
+        "processed again with its camera's joint calibration; writes <date>-fleet<tag>.md/.json.")
     f.add_argument("--corpus", type=Path, required=True, help="the fleet corpus directory")
     f.add_argument("--half", choices=("tuning", "check"), help="one half only (by camera)")
     f.add_argument("--keep", type=Path, required=True, metavar="DIR",
                    help="each journey's calibration and window are kept here and reused")
     f.add_argument("--agree-rel", type=float, default=0.03,
                    help="calibrations within this share of each other agree (default 0.03)")
+    f.add_argument("--again", action="store_true",
+                   help="also run every journey in full, with its true camera and processed again "
+                   "with its camera's joint calibration (kept in --keep; ~1 min a journey)")
     f.add_argument("--tag", default="", help="appended to the output names")
     f.add_argument("--out", type=Path, default=argparse.SUPPRESS,
                    help="where the results go (default bench/results)")

@@ -11,6 +11,11 @@ knobs, in minutes.
 Each camera's second journey with a turn is also run given the camera's calibration after its
 first (``cameras.check_on_turn``: the stored camera checked on the turn), beside its own
 self-calibration above: time and outcome side by side (``<name>.check.json`` in ``--keep``).
+
+With ``again``, every journey of each camera is run in full twice: with its true camera, and as
+the service processes it again once the camera is fitted from all its journeys (the joint
+calibration as the camera's stored one: checked on a turn, used as it is without one); kept as
+``<name>.true.json`` and ``<name>.again.json`` (issue 66's "processed again" bar).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from app.pipeline.cameras.calibrate_jointly import (CameraWindow, calibrate_join
 from app.pipeline.types import CameraModel, WindowObservations
 from bench.corpus.fleet_report import render_markdown
 from bench.corpus.report import STEEP_TURN_DEG
-from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config,
+from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config, run_journey,
                               select_journeys)
 from bench.paper.run_pipeline import RunTask, run_isolated
 
@@ -107,6 +112,39 @@ def second_journeys(corpus_dir: Path, entries: list[dict], records: list[dict],
              "checked": checked_second(corpus_dir, entry, first, keep_dir)}]
 
 
+def _placement(record: dict) -> dict:
+    """What the processed-again table reads of a full run's corpus record."""
+    signs = record.get("signs") or {}
+    return {"name": record["name"], "error": record["error"], "wall_s": record["wall_s"],
+            "source": (record.get("calibration") or {}).get("source"),
+            "mappable": signs.get("n_mappable", 0), "found": signs.get("n_mappable_found", 0),
+            "false": signs.get("n_false", 0),
+            "abs_m": [e["abs_m"] for e in (record.get("sign_errors") or {}).values()
+                      if e.get("abs_m") is not None]}
+
+
+def processed_again(corpus_dir: Path, entries: list[dict], joint: CameraModel,
+                    keep_dir: Path) -> dict:
+    """One camera's journeys (``entries``) run in full with their true camera and given
+    ``joint`` as the camera's stored calibration, each kept in ``keep_dir``."""
+    runs: dict[str, list[dict]] = {"true": [], "again": []}
+    for entry in entries:
+        for way in runs:
+            path = keep_dir / f"{entry['name']}.{way}.json"
+            given = joint.params() if way == "again" else None
+            kept = json.loads(path.read_text()) if path.exists() else None
+            if kept is None or kept.get("given") != given:  # another joint fit: run again
+                record = run_journey(corpus_dir, entry, pipeline_config({}), False,
+                                     true_camera=way == "true", stored_camera=way == "again",
+                                     camera=joint if way == "again" else None)
+                kept = {**_placement(record), "given": given}
+                path.write_text(json.dumps(kept, indent=1))
+            runs[way].append(kept)
+            log(f"{entry['name']} {way}: {runs[way][-1]['found']}/{runs[way][-1]['mappable']} "
+                f"signs, {runs[way][-1]['source'] or runs[way][-1]['error']}")
+    return runs
+
+
 def _window(record: dict, keep_dir: Path) -> CameraWindow:
     camera = CameraModel.from_params(record["width"], record["height"], record["camera"])
     with np.load(keep_dir / f"{record['name']}.npz") as arrays:
@@ -141,7 +179,7 @@ def camera_rows(records: list[dict], true: dict, keep_dir: Path, agree_rel: floa
 
 
 def run_fleet(corpus_dir: Path, out_dir: Path, keep_dir: Path, *, half: str | None = None,
-              agree_rel: float = 0.03, tag: str = "") -> Path:
+              agree_rel: float = 0.03, tag: str = "", again: bool = False) -> Path:
     index = load_corpus(corpus_dir)
     entries = select_journeys(index, half=half)
     keep_dir.mkdir(parents=True, exist_ok=True)
@@ -159,17 +197,25 @@ def run_fleet(corpus_dir: Path, out_dir: Path, keep_dir: Path, *, half: str | No
     cameras = {}
     for record in journeys:
         cameras.setdefault(record["camera_id"], []).append(record)
-    history, seconds = [], []
+    history, seconds, reprocessed = [], [], []
     for camera_id, records in cameras.items():
         true = next(e["params"] for e in entries if e["params"]["camera_id"] == camera_id)
         ordered = sorted(records, key=lambda r: r["index"])
-        history += camera_rows(ordered, true, keep_dir, agree_rel)
-        log(f"{camera_id}: {history[-1]['joint_errors'] if history else 'no calibration'}")
+        rows = camera_rows(ordered, true, keep_dir, agree_rel)
+        history += rows
+        log(f"{camera_id}: {rows[-1]['joint_errors'] if rows else 'no calibration'}")
         seconds += second_journeys(corpus_dir, entries, ordered, keep_dir)
         if seconds and seconds[-1]["camera_id"] == camera_id:
             log(f"{camera_id} second journey checked: {seconds[-1]['checked']['summary'][:100]}")
+        if again and rows:
+            size = next(r for r in ordered if r.get("camera"))
+            joint = CameraModel.from_params(size["width"], size["height"], rows[-1]["joint"])
+            mine = [e for e in entries if e["params"]["camera_id"] == camera_id]
+            reprocessed.append({"camera_id": camera_id,
+                                **processed_again(corpus_dir, mine, joint, keep_dir)})
     report = {"corpus": str(corpus_dir), "half": half, "agree_rel": agree_rel,
-              "journeys": journeys, "history": history, "second_journeys": seconds}
+              "journeys": journeys, "history": history, "second_journeys": seconds,
+              "processed_again": reprocessed}
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"{date.today().isoformat()}-fleet{'-' + tag if tag else ''}"
     (out_dir / f"{stem}.json").write_text(json.dumps(report, indent=1))

@@ -308,7 +308,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
                 keep_dir: Path | None = None, replay_dir: Path | None = None,
                 focal_scale: float = 1.0, stored_camera: bool = False,
                 as_video: bool = False, antenna_undeclared: bool = False,
-                gps_jump: bool = False) -> dict:
+                gps_jump: bool = False, camera: CameraModel | None = None) -> dict:
     """Run the pipeline on one corpus journey in a fresh process; a crash is a failed record.
     ``true_camera`` hands the pipeline the journey's true camera instead of self-calibrating, so
     that sign placement is measured on every journey, those without turns included.
@@ -317,6 +317,7 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     and fy are handed over times this (what a calibration that many per cent off does to the
     later stages). ``stored_camera``: the true camera (times ``focal_scale``) is handed over as
     the camera's stored calibration, as the service does, and the journey still calibrates itself.
+    ``camera``: handed over in place of the true one (with ``true_camera`` or ``stored_camera``).
     ``as_video``: run it as a dash cam's video bundle (``video_input``), made in the journey's
     temporary directory; ``bundle_digest`` stays the frames bundle's, the rendering both share.
     ``antenna_undeclared``: its manifest's antenna offset left out (``without_antenna_offset``).
@@ -325,7 +326,9 @@ def run_journey(corpus_dir: Path, entry: dict, config: PipelineConfig,
     truth = json.loads((jdir / "truth.json").read_text())
     digest = bundle_digest(jdir / "bundle.zip")
     known = None
-    if true_camera or stored_camera:
+    if camera is not None:
+        known = camera
+    elif true_camera or stored_camera:
         cam = truth["camera"]
         known = CameraModel.from_params(cam["width"], cam["height"],
                                         {**cam, "fx": cam["fx"] * focal_scale,
