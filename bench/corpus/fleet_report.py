@@ -79,8 +79,8 @@ def camera_table(history: list[dict], journeys: list[dict]) -> list[str]:
     for j in journeys:
         total[j["camera_id"]] = total.get(j["camera_id"], 0) + 1
     out = ["| camera | journeys (calibrated) | left out | fx % | fy % (sigma, resolved) | cx, cy px "
-           "| distortion px | consensus fx % | consensus distortion px |",
-           "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+           "| distortion px | whole camera px | consensus fx % | consensus distortion px |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in _final(history):
         e, c = r["joint_errors"], r["consensus_errors"]
         fy_sigma_pct = 100 * r["sigma"]["fy"] / r["joint"]["fy"]
@@ -88,7 +88,8 @@ def camera_table(history: list[dict], journeys: list[dict]) -> list[str]:
                    f"{len(r['left_out'])} | {_fmt(e['fx_pct'])} | {_fmt(e['fy_pct'])} "
                    f"({_fmt(fy_sigma_pct, sign=False)}, {'yes' if r['fy_resolved'] else 'no'}) | "
                    f"{_fmt(e['cx_px'], 1)}, {_fmt(e['cy_px'], 1)} | "
-                   f"{_fmt(e.get('distortion_px'), 2, sign=False)} | {_fmt(c['fx_pct'])} | "
+                   f"{_fmt(e.get('distortion_px'), 2, sign=False)} | "
+                   f"{_fmt(e.get('projection_px'), 2, sign=False)} | {_fmt(c['fx_pct'])} | "
                    f"{_fmt(c.get('distortion_px'), 2, sign=False)} |")
     return out
 

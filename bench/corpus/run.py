@@ -33,7 +33,8 @@ from bench.corpus import antenna, replay
 from bench.corpus.broken import broken_record, gps_jump_of, with_gps_jump
 from bench.corpus import report as corpus_report
 from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
-                                 mappable_ids, true_distortion_error_px, truth_id)
+                                 mappable_ids, projection_error_px, true_distortion_error_px,
+                                 truth_id)
 from bench.paper.run_pipeline import RunOutput, RunTask, detections_of, run_isolated
 from bench.paper.runner import finite, run_meta  # commit, machine, pycolmap: as the other benches
 
@@ -105,8 +106,8 @@ def pipeline_config(overrides: dict[str, Any]) -> PipelineConfig:
 def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, float | None]:
     """fx, fy, k1, k2 in % of the true value (None when the true value is 0), k1, k2 also
     absolute, cx, cy in pixels: a principal point is judged against the pixel grid, not its own
-    size; ``distortion_px`` (``metrics.true_distortion_error_px``) when ``true`` has the image
-    size."""
+    size; ``distortion_px`` and ``projection_px`` (``metrics.distortion_error_px``,
+    ``metrics.projection_error_px``) when ``true`` has the image size."""
     out: dict[str, float | None] = {}
     for k in ("fx", "fy", "k1", "k2"):
         out[f"{k}_pct"] = 100.0 * (est[k] - true[k]) / abs(true[k]) if true[k] else None
@@ -117,6 +118,7 @@ def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, fl
     distortion_px = true_distortion_error_px(est, true)
     if distortion_px is not None:
         out["distortion_px"] = distortion_px
+        out["projection_px"] = true_distortion_error_px(est, true, projection_error_px)
     return out
 
 

@@ -79,6 +79,24 @@ def test_distortion_error_is_the_largest_shift_in_the_image():
     assert "distortion_px" not in camera_errors(true, TRUE)  # no image size: not computed
 
 
+def test_projection_error_counts_a_focal_length_the_distortion_makes_up_for():
+    from app.synth.camera.lens import undistort_radius
+
+    true = {"fx": 500.0, "fy": 500.0, "cx": 500.0, "cy": 500.0, "k1": -0.05, "k2": 0.0,
+            "width": 1001, "height": 1001}
+    # fx 1 % long alone: no distortion error, but the corner of the image (500 sqrt(2) px from
+    # the centre) moves by 1 % of that.
+    e = camera_errors({**true, "fx": 505.0, "fy": 505.0}, true)
+    assert e["distortion_px"] == pytest.approx(0.0, abs=1e-9)
+    assert e["projection_px"] == pytest.approx(0.01 * 500 * math.sqrt(2), rel=1e-3)
+    # A k1 that takes the long focal length back at the corner: its distortion is pixels off,
+    # the camera as a whole far closer.
+    r2 = float(undistort_radius(math.sqrt(2.0), -0.05, 0.0)) ** 2
+    k1 = ((1 - 0.05 * r2) / 1.01 - 1) / r2
+    both = camera_errors({**true, "fx": 505.0, "fy": 505.0, "k1": k1}, true)
+    assert both["distortion_px"] > 5.0 and both["projection_px"] < 0.5 * e["projection_px"]
+
+
 def test_records_written_before_the_distortion_error_get_it_from_their_parameters():
     rec = _record("t9", "tuning")
     rec["params"].update({"fx": 1000.0, "fy": 1000.0, "cx": 640.0, "cy": 360.0, "k2": 0.0})
