@@ -34,6 +34,7 @@ from bench.corpus.fleet_report import render_markdown
 from bench.corpus.report import STEEP_TURN_DEG
 from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config, run_journey,
                               select_journeys)
+from bench.paper.metrics import distortion_error_px
 from bench.paper.run_pipeline import RunTask, run_isolated
 
 
@@ -158,23 +159,39 @@ def _consensus(windows: list[CameraWindow], agree_rel: float) -> CameraModel:
     return CameraModel(group[0].width, group[0].height, *map(float, mean))
 
 
+def seen_px(windows: list[CameraWindow], true: CameraModel) -> float:
+    """How far from the principal point the windows' features reach: the 95th percentile of
+    their observations' distance from it, px."""
+    xy = np.concatenate([w.observations.xy_px for w in windows])
+    return float(np.percentile(np.hypot(xy[:, 0] - true.cx, xy[:, 1] - true.cy), 95))
+
+
 def camera_rows(records: list[dict], true: dict, keep_dir: Path, agree_rel: float) -> list[dict]:
     """For one camera, after each of its journeys (in order): the joint calibration and the
-    consensus of those calibrated so far, with their errors against ``true``."""
+    consensus of those calibrated so far, with their errors against ``true``; and how far into
+    the image the windows' features reach (``seen_px``, their 95th percentile distance from the
+    principal point; ``corner_px``) with the joint distortion's error within that."""
     rows, windows = [], []
+    true_camera = CameraModel.from_params(int(true["width"]), int(true["height"]), true)
+    corner_px = float(np.hypot(max(true_camera.cx, true_camera.width - 1 - true_camera.cx),
+                               max(true_camera.cy, true_camera.height - 1 - true_camera.cy)))
     for record in records:
         if not record.get("camera"):
             continue  # no new window: the camera stays as it was
         windows.append(_window(record, keep_dir))
         joint = calibrate_jointly(windows, agree_rel=agree_rel)
         consensus = _consensus(windows, agree_rel)
+        reach = seen_px(windows, true_camera)
         rows.append({"camera_id": record["camera_id"], "after": record["index"] + 1,
                      "windows": len(windows), "used": joint.used, "left_out": joint.left_out,
                      "joint": joint.camera.params(), "sigma": joint.sigma,
                      "fy_resolved": joint.fy_resolved,
                      "true": {k: float(true[k]) for k in ("fx", "fy", "cx", "cy", "k1", "k2")},
                      "joint_errors": camera_errors(joint.camera.params(), true),
-                     "consensus_errors": camera_errors(consensus.params(), true)})
+                     "consensus_errors": camera_errors(consensus.params(), true),
+                     "seen_px": reach, "corner_px": corner_px,
+                     "distortion_seen_px": distortion_error_px(joint.camera.params(),
+                                                               true_camera, within_px=reach)})
     return rows
 
 

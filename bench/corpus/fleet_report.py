@@ -63,6 +63,11 @@ def camera_bar_rows(history: list[dict]) -> list[str]:
                                f"distortion within {CAMERA_DISTORTION_PX:g} px")):
         out.append(f"| {label} | {_share([_meets(r['joint_errors'])[k] for r in final])} | "
                    f"{_share([_meets(r['consensus_errors'])[k] for r in final])} |")
+    seen = [r["distortion_seen_px"] <= CAMERA_DISTORTION_PX for r in final
+            if r.get("distortion_seen_px") is not None]
+    if seen:
+        out.append(f"| distortion within {CAMERA_DISTORTION_PX:g} px where its turns' features "
+                   f"reach (not the bar) | {_share(seen)} | - |")
     fy_ok = [abs(r["joint_errors"]["fy_pct"]) <= CAMERA_FOCAL_PCT if r["fy_resolved"] else
              abs(r["joint"]["fy"] - r["true"]["fy"]) <= 2 * r["sigma"]["fy"] for r in final]
     out.append(f"| fy within {CAMERA_FOCAL_PCT:g} % where resolved, else within 2 sigma | "
@@ -74,13 +79,27 @@ def camera_bar_rows(history: list[dict]) -> list[str]:
     return out
 
 
+def _seen(row: dict) -> str:
+    """The joint distortion's error within the reach of the windows' features (rows written
+    before it was measured have none)."""
+    if row.get("seen_px") is None:
+        return "-"
+    return (f"{_fmt(row['distortion_seen_px'], 2, sign=False)} "
+            f"({100 * row['seen_px'] / row['corner_px']:.0f} %)")
+
+
 def camera_table(history: list[dict], journeys: list[dict]) -> list[str]:
+    """Each camera after all its journeys. Beside the distortion error over the whole image (the
+    bar): the same within the reach of its windows' features (95th percentile distance from the
+    principal point, as a share of the corner's), and the whole camera's error (focal length and
+    principal point included)."""
     total: dict[str, int] = {}
     for j in journeys:
         total[j["camera_id"]] = total.get(j["camera_id"], 0) + 1
     out = ["| camera | journeys (calibrated) | left out | fx % | fy % (sigma, resolved) | cx, cy px "
-           "| distortion px | whole camera px | consensus fx % | consensus distortion px |",
-           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+           "| distortion px | where its turns reach: px (reach) | whole camera px | consensus fx % "
+           "| consensus distortion px |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in _final(history):
         e, c = r["joint_errors"], r["consensus_errors"]
         fy_sigma_pct = 100 * r["sigma"]["fy"] / r["joint"]["fy"]
@@ -89,6 +108,7 @@ def camera_table(history: list[dict], journeys: list[dict]) -> list[str]:
                    f"({_fmt(fy_sigma_pct, sign=False)}, {'yes' if r['fy_resolved'] else 'no'}) | "
                    f"{_fmt(e['cx_px'], 1)}, {_fmt(e['cy_px'], 1)} | "
                    f"{_fmt(e.get('distortion_px'), 2, sign=False)} | "
+                   f"{_seen(r)} | "
                    f"{_fmt(e.get('projection_px'), 2, sign=False)} | {_fmt(c['fx_pct'])} | "
                    f"{_fmt(c.get('distortion_px'), 2, sign=False)} |")
     return out

@@ -252,20 +252,24 @@ def sign_summary(errors: dict[str, dict[str, float]]) -> dict[str, float]:
             "facing_median_deg": stat(np.median, facing)}
 
 
-def _grid_rays(true: CameraModel, n: int) -> np.ndarray:
-    """(n*n, 2) normalised undistorted rays through an ``n`` x ``n`` grid of ``true``'s pixels."""
+def _grid_px(true: CameraModel, n: int) -> np.ndarray:
     u, v = np.meshgrid(np.linspace(0.0, true.width - 1.0, n),
                        np.linspace(0.0, true.height - 1.0, n))
-    return undistort_normalized(true, np.stack([u, v], axis=-1).reshape(-1, 2))
+    return np.stack([u, v], axis=-1).reshape(-1, 2)
 
 
-def distortion_error_px(est: dict[str, float], true: CameraModel, n: int = 41) -> float:
-    """The largest distance over the image (an ``n`` x ``n`` grid of its pixels) between where
-    ``est``'s k1, k2 and ``true``'s put a ray, both through ``true``'s fx, fy, cx, cy: what an
-    error in the distortion costs in the image. k1's per cent does not say it: on a lens with k1
-    +0.003, k1 86 % off moved no pixel by more than 0.5 px, while k1 about 1 % off and k2 off left
-    6-7 px at the corners of two wide images of the corpus."""
-    xy_u = _grid_rays(true, n)
+def distortion_error_px(est: dict[str, float], true: CameraModel, n: int = 41,
+                        within_px: float | None = None) -> float:
+    """The largest distance over the image (an ``n`` x ``n`` grid of its pixels; those within
+    ``within_px`` of the principal point, if given) between where ``est``'s k1, k2 and ``true``'s
+    put a ray, both through ``true``'s fx, fy, cx, cy: what an error in the distortion costs in
+    the image. k1's per cent does not say it: on a lens with k1 +0.003, k1 86 % off moved no pixel
+    by more than 0.5 px, while k1 about 1 % off and k2 off left 6-7 px at the corners of two wide
+    images of the corpus."""
+    px = _grid_px(true, n)
+    if within_px is not None:
+        px = px[np.hypot(px[:, 0] - true.cx, px[:, 1] - true.cy) <= within_px]
+    xy_u = undistort_normalized(true, px)
     r_u = np.maximum(np.hypot(xy_u[:, 0], xy_u[:, 1]), 1e-12)
     r_d_est = distort_radius(r_u, est["k1"], est["k2"])
     shift = (r_d_est - distort_radius(r_u, true.k1, true.k2)) / r_u
@@ -277,7 +281,7 @@ def projection_error_px(est: dict[str, float], true: CameraModel, n: int = 41) -
     length, principal point and distortion) and the true one put the same ray. A focal length
     off and a distortion that makes up for it cost less here than ``distortion_error_px`` says:
     on a wide lens, fx 0.25 % off moves its edge by ~2 px, which k1 can take back."""
-    xy_u = _grid_rays(true, n)
+    xy_u = undistort_normalized(true, _grid_px(true, n))
     r2 = np.sum(xy_u ** 2, axis=1)
 
     def project(c) -> np.ndarray:

@@ -77,6 +77,13 @@ def test_distortion_error_is_the_largest_shift_in_the_image():
     both = camera_errors({**true, "k1": 0.01, "k2": -0.005}, true)["distortion_px"]
     assert both < 0.5 * e["distortion_px"]
     assert "distortion_px" not in camera_errors(true, TRUE)  # no image size: not computed
+    # Within 250 px of the centre (normalised radius 0.5): 500 * 0.5 * 0.01 * 0.5^2 px at most.
+    from app.pipeline.types import CameraModel
+    from bench.paper.metrics import distortion_error_px
+
+    within = distortion_error_px({**true, "k1": 0.01}, CameraModel.from_params(1001, 1001, true),
+                                 within_px=250.0)
+    assert within == pytest.approx(500 * 0.5 * 0.01 * 0.25, rel=1e-6)
 
 
 def test_projection_error_counts_a_focal_length_the_distortion_makes_up_for():

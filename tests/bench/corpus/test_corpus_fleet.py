@@ -54,6 +54,10 @@ def test_fleet_bench_fits_each_camera_from_its_kept_windows(tmp_path):
     final = report["history"][-1]
     assert [(r["after"], r["windows"]) for r in report["history"]] == [(1, 1), (2, 2), (4, 3)]
     assert abs(final["joint_errors"]["fx_pct"]) < 0.3 < abs(final["consensus_errors"]["fx_pct"])
+    # The windows' features reach part of the image; the distortion within that reach is no
+    # worse than over the whole image.
+    assert 0 < final["seen_px"] < final["corner_px"]
+    assert final["distortion_seen_px"] <= final["joint_errors"]["distortion_px"]
     text = md.read_text()
     assert "| turning journeys calibrated | 3/3 (100 %) |" in text
     assert "| fx within 0.3 % | 1/1 (100 %) | 0/1 (0 %) |" in text
