@@ -23,7 +23,7 @@ from app.pipeline.colmap.sfm import SfmRun, WindowRequest, WindowResult
 from app.pipeline.colmap.stage import REDUCED_READ, StageSfm, read_gray
 from app.pipeline.cameras import check_on_turn
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry import antenna, geodesy, gps_track
+from app.pipeline.geometry import antenna, geodesy, gps_noise, gps_track
 from app.pipeline.steps import align, calibrate, ego_motion, image_turns, place_signs, plan
 from app.pipeline.steps.calibrate import CalibrationWindow
 from app.pipeline.steps.sign_tracks import SignTrack
@@ -456,6 +456,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                      [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
                       "positions neither align nor judge a window"])
         limit_m = place_signs.alignment_limit_m(journey.gps_noise_m, config)
+        if limit_m is None:
+            notes.append(f"the GPS's noise is unknown (fewer than {gps_noise.MIN_FIXES} fixes): "
+                         "no window is judged against it")
         broken: list[BrokenWindow] = []
 
         def on_broken(w: align.AlignedWindow, fix: align.Mend) -> None:
