@@ -455,10 +455,10 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
         untrusted = ([] if trusted is None or trusted.all() else
                      [f"{int((~trusted).sum())} frames in GPS dropouts: their interpolated "
                       "positions neither align nor judge a window"])
-        limit_m = place_signs.alignment_limit_m(journey.gps_noise_m, config)
+        limit_m = place_signs.alignment_limit_m(place_signs.judging_noise_m(journey), config)
         if limit_m is None:
-            notes.append(f"the GPS's noise is unknown (fewer than {gps_noise.MIN_FIXES} fixes): "
-                         "no window is judged against it")
+            notes.append("the GPS's noise is unknown (fewer than "
+                         f"{gps_noise.MIN_FIXES_TO_JUDGE} fixes): no window is judged against it")
         broken: list[BrokenWindow] = []
 
         def on_broken(w: align.AlignedWindow, fix: align.Mend) -> None:

@@ -16,21 +16,24 @@ import numpy as np
 from app.pipeline.geometry.geodesy import frame_at
 
 WINDOW = 5
-# Three windows at least. A short journey (24 frames at 5 Hz, a fix every 0.5 s: 9 fixes) had no
-# estimate at 10, so nothing judged its window, which lay 15 m rms off the GPS and placed 3 false
-# signs; an estimate from few windows errs, mostly upwards where a turn fills them, and the check
-# it feeds allows 5 times it.
-MIN_FIXES = WINDOW + 2
+MIN_FIXES = 2 * WINDOW
+# Enough to judge a window by (``steps.place_signs.judging_noise_m``): three windows. A short
+# journey (24 frames at 5 Hz, a fix every 0.5 s: 9 fixes) had no estimate, so nothing judged its
+# window, which lay 15 m rms off the GPS and placed 3 false signs. Few windows err, mostly upwards
+# where a turn fills them, and the check allows 5 times the estimate; the journey's other uses
+# of its noise (turn finding, the GPS spline) keep MIN_FIXES: given these estimates they placed
+# a sign of another short journey 3.4 m off (docs/decisions/gps-noise-few-fixes.md).
+MIN_FIXES_TO_JUDGE = WINDOW + 2
 MAX_WINDOWS = 5000  # evenly spread over a long journey: the estimate needs no more
 MEDIAN_ABS_PER_SIGMA = 0.6745  # median |z| of a standard normal
 
 
-def white_noise_m(timestamp_s: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray
-                  ) -> float | None:
+def white_noise_m(timestamp_s: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray,
+                  min_fixes: int = MIN_FIXES) -> float | None:
     """Horizontal white-noise sigma (m, per axis) of fixes at ``timestamp_s`` (M,), increasing;
-    None with fewer than ``MIN_FIXES``."""
+    None with fewer than ``min_fixes``."""
     t = np.asarray(timestamp_s, float)
-    if len(t) < MIN_FIXES:
+    if len(t) < max(min_fixes, MIN_FIXES_TO_JUDGE):
         return None
     origin = frame_at(float(lat_deg[0]), float(lon_deg[0]), 0.0)
     xy = origin.to_local(lat_deg, lon_deg, np.zeros(len(t)))[:, :2]

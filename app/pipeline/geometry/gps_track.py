@@ -35,7 +35,7 @@ PIECE_OVERLAP = 50
 # is not believed, and that axis keeps the straight lines. A right smoothing leaves less than one.
 MAX_RESIDUAL_NOISE = 2.0
 MIN_RESIDUAL_M = 0.05  # ... or than this, for a near-perfect receiver
-# Fewer than 7 fixes (a short journey at 1 Hz) tell no noise (``geometry.gps_noise``), yet are where
+# Fewer than 10 fixes (a short journey at 1 Hz) tell no noise (``geometry.gps_noise``), yet are where
 # lines cut curves the most; cross-validation then mostly interpolates them. Without a noise
 # figure, a spline further than this from the fixes (rms) is not believed.
 UNKNOWN_NOISE_MAX_RESIDUAL_M = 1.0

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.pipeline.config import PipelineConfig
-from app.pipeline.geometry import geodesy
+from app.pipeline.geometry import geodesy, gps_noise
 from app.pipeline.geometry.facing import facing_deg
 from app.pipeline.geometry.triangulation import (TriangulatedPoint, TriangulationError,
                                                  largest_std_m, triangulate_inliers,
@@ -55,7 +55,7 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
         outcome = outcomes.setdefault(track.track_id, TrackOutcome())
         try:
             outcome.placed.append(place_pass(track, aligned, xyz_gps, camera, config,
-                                             journey.gps_noise_m, trusted))
+                                             judging_noise_m(journey), trusted))
         except TriangulationError as exc:
             outcome.reasons.append(exc.reason)
     outcomes = merge_fragments(outcomes, classes, config.merge_fragments_within_m)
@@ -157,6 +157,17 @@ def place_pass(track, aligned, xyz_gps: np.ndarray, camera: CameraModel,
                       tp.alignment_rms_m,
                       GeorefTerms.of_alignment(tp.alignment_rms_m, tp.alignment_n,
                                                tp.window_rms_m))
+
+
+def judging_noise_m(journey: Journey) -> float | None:
+    """The GPS noise a window's residual is judged against (``alignment_limit_m``): the
+    journey's, or where its fixes are too few for that, an estimate from as few as
+    ``gps_noise.MIN_FIXES_TO_JUDGE`` of them; None below that."""
+    fixes = journey.gps_fixes
+    if journey.gps_noise_m is not None or fixes is None:
+        return journey.gps_noise_m
+    return gps_noise.white_noise_m(fixes.timestamp_s, fixes.lat_deg, fixes.lon_deg,
+                                   min_fixes=gps_noise.MIN_FIXES_TO_JUDGE)
 
 
 def alignment_limit_m(gps_noise_m: float | None, config: PipelineConfig) -> float | None:

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from app.pipeline.config import PipelineConfig
 from app.pipeline.geometry.geodesy import frame_at
-from app.pipeline.geometry.gps_noise import white_noise_m
+from app.pipeline.geometry.gps_noise import MIN_FIXES_TO_JUDGE, white_noise_m
 from app.pipeline.steps.place_signs import check_reconstruction
 from app.pipeline.geometry.triangulation import TriangulationError
 
@@ -36,17 +38,39 @@ def test_white_noise_is_recovered_whatever_the_rate_and_a_bias_is_not_counted(ra
 
 def test_too_few_fixes_tell_nothing():
     t, lat, lon = _drive(1.0, 1.0, 0)
-    assert white_noise_m(t[:6], lat[:6], lon[:6]) is None
-    assert white_noise_m(t[:7], lat[:7], lon[:7]) is not None
+    assert white_noise_m(t[:9], lat[:9], lon[:9]) is None
+    assert white_noise_m(t[:10], lat[:10], lon[:10]) is not None
+    # Enough to judge a window by, not for the journey's other uses of its noise.
+    assert white_noise_m(t[:6], lat[:6], lon[:6], min_fixes=MIN_FIXES_TO_JUDGE) is None
+    assert white_noise_m(t[:7], lat[:7], lon[:7], min_fixes=MIN_FIXES_TO_JUDGE) is not None
 
 
-def test_a_short_journeys_few_fixes_give_a_noise_the_check_can_use():
-    """Seven to nine fixes (a few seconds of driving): the estimate scatters, but over many
+def test_a_short_journeys_few_fixes_give_a_noise_to_judge_its_windows_by():
+    """Seven to nine fixes (a few seconds through a turn): the estimate scatters, but over many
     draws it is not small where the fixes are noisy (the check allows 5 times it)."""
-    est = np.array([white_noise_m(*(a[40:48] for a in _drive(2.0, 1.0, seed)))
-                    for seed in range(40)])
+    est = np.array([white_noise_m(*(a[40:48] for a in _drive(2.0, 1.0, seed)),
+                                  min_fixes=MIN_FIXES_TO_JUDGE) for seed in range(40)])
     assert np.median(est) == pytest.approx(1.0, rel=0.35)
     assert np.quantile(est, 0.05) > 0.4
+
+
+def test_a_journey_with_few_fixes_is_judged_by_their_own_noise():
+    from app.pipeline.steps.place_signs import alignment_limit_m, judging_noise_m
+    from app.pipeline.types import GpsTrack, Journey
+
+    t, lat, lon = _drive(2.0, 1.0, 3)
+
+    def journey(rows: slice) -> Journey:
+        # As the bundle reader leaves a journey whose fixes are too few to give its noise.
+        return Journey("cam", [], lat[rows], lon[rows], np.zeros(len(t[rows])), [], 1280, 720,
+                       gps_fixes=GpsTrack(t[rows], lat[rows], lon[rows], np.zeros(len(t[rows]))))
+
+    noise = judging_noise_m(journey(slice(40, 49)))  # 9 fixes through the turn
+    assert 0.4 < noise < 2.5
+    # A window 15 m rms off its GPS is broken by that limit (5 x the noise, at least 1 m).
+    assert alignment_limit_m(noise, PipelineConfig()) < 15.0
+    assert judging_noise_m(journey(slice(0, 5))) is None
+    assert judging_noise_m(replace(journey(slice(0, 5)), gps_noise_m=0.3)) == 0.3
 
 
 def test_a_reconstruction_far_off_its_gps_is_rejected_with_the_reason():
