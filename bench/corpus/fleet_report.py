@@ -213,4 +213,4 @@ def render_markdown(report: dict) -> str:
              *history_rows(report["history"]), "",
              *second_journey_rows(report.get("second_journeys", [])), "",
              *again_rows(report.get("processed_again", []))]
-    return "\n".join(parts)
+    return "\n".join(parts).rstrip("\n") + "\n"
