@@ -457,8 +457,9 @@ def georeference(journey: Journey, recon: Reconstruction, config: PipelineConfig
                       "positions neither align nor judge a window"])
         limit_m = place_signs.alignment_limit_m(place_signs.judging_noise_m(journey), config)
         if limit_m is None:
-            notes.append("the GPS's noise is unknown (fewer than "
-                         f"{gps_noise.MIN_FIXES_TO_JUDGE} fixes): no window is judged against it")
+            why = ("one EXIF position per frame" if journey.gps_fixes is None else
+                   f"fewer than {gps_noise.MIN_FIXES_TO_JUDGE} fixes")
+            notes.append(f"the GPS's noise is unknown ({why}): no window is judged against it")
         broken: list[BrokenWindow] = []
 
         def on_broken(w: align.AlignedWindow, fix: align.Mend) -> None:

@@ -121,6 +121,7 @@ def test_a_processed_journey_reports_every_stage_in_order(turn_run):
     assert len(accepted) == 1 and accepted[0].startswith(f"frames {first}-{end - 1}:")
     assert ego.details and all(" registered" in d for d in ego.details)
     assert "windows aligned to GPS" in align.summary
+    assert not any("noise is unknown" in d for d in align.details)  # its fixes tell their noise
     assert triangulate.summary.startswith(f"{len(result.signs)} signs placed")
     for r in result.rejected:
         assert any(d.startswith(f"track {r.track_id} ") and r.reason in d

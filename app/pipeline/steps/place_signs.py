@@ -51,11 +51,12 @@ def place_signs(tracks, aligned, xyz_gps: np.ndarray, camera: CameraModel, journ
     frames whose GPS position may align the frames around a sign (``align.track_poses``)."""
     outcomes: dict[str, TrackOutcome] = {}
     classes = {t.track_id: t.cls for t in tracks}  # the passes of a track share its class
+    noise_m = judging_noise_m(journey)
     for track in tracks:
         outcome = outcomes.setdefault(track.track_id, TrackOutcome())
         try:
-            outcome.placed.append(place_pass(track, aligned, xyz_gps, camera, config,
-                                             judging_noise_m(journey), trusted))
+            outcome.placed.append(place_pass(track, aligned, xyz_gps, camera, config, noise_m,
+                                             trusted))
         except TriangulationError as exc:
             outcome.reasons.append(exc.reason)
     outcomes = merge_fragments(outcomes, classes, config.merge_fragments_within_m)
