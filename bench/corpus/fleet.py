@@ -34,7 +34,7 @@ from bench.corpus.fleet_report import render_markdown
 from bench.corpus.report import STEEP_TURN_DEG
 from bench.corpus.run import (camera_errors, load_corpus, log, pipeline_config, run_journey,
                               select_journeys)
-from bench.paper.metrics import distortion_error_px
+from bench.paper.metrics import distortion_error_px, true_camera
 from bench.paper.run_pipeline import RunTask, run_isolated
 
 
@@ -148,8 +148,8 @@ def processed_again(corpus_dir: Path, entries: list[dict], joint: CameraModel,
                 kept = {**_placement(record), "given": given}
                 path.write_text(json.dumps(kept, indent=1))
             runs[way].append(kept)
-            log(f"{entry['name']} {way}: {runs[way][-1]['found']}/{runs[way][-1]['mappable']} "
-                f"signs, {runs[way][-1]['source'] or runs[way][-1]['error']}")
+            log(f"{entry['name']} {way}: {kept['found']}/{kept['mappable']} signs, "
+                f"{kept['source'] or kept['error']}")
     return runs
 
 
@@ -179,16 +179,16 @@ def camera_rows(records: list[dict], true: dict, keep_dir: Path, agree_rel: floa
     the image the windows' features reach (``seen_px``, their 95th percentile distance from the
     principal point; ``corner_px``) with the joint distortion's error within that."""
     rows, windows = [], []
-    true_camera = CameraModel.from_params(int(true["width"]), int(true["height"]), true)
-    corner_px = float(np.hypot(max(true_camera.cx, true_camera.width - 1 - true_camera.cx),
-                               max(true_camera.cy, true_camera.height - 1 - true_camera.cy)))
+    true_cam = true_camera(true)
+    corner_px = float(np.hypot(max(true_cam.cx, true_cam.width - 1 - true_cam.cx),
+                               max(true_cam.cy, true_cam.height - 1 - true_cam.cy)))
     for record in records:
         if not record.get("camera"):
             continue  # no new window: the camera stays as it was
         windows.append(_window(record, keep_dir))
         joint = calibrate_jointly(windows, agree_rel=agree_rel)
         consensus = _consensus(windows, agree_rel)
-        reach = seen_px(windows, true_camera)
+        reach = seen_px(windows, true_cam)
         rows.append({"camera_id": record["camera_id"], "after": record["index"] + 1,
                      "windows": len(windows), "used": joint.used, "left_out": joint.left_out,
                      "joint": joint.camera.params(), "sigma": joint.sigma,
@@ -198,7 +198,7 @@ def camera_rows(records: list[dict], true: dict, keep_dir: Path, agree_rel: floa
                      "consensus_errors": camera_errors(consensus.params(), true),
                      "seen_px": reach, "corner_px": corner_px,
                      "distortion_seen_px": distortion_error_px(joint.camera.params(),
-                                                               true_camera, within_px=reach)})
+                                                               true_cam, within_px=reach)})
     return rows
 
 

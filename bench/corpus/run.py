@@ -32,8 +32,8 @@ from app.pipeline.types import CameraModel, JourneyResult, StageReport
 from bench.corpus import antenna, replay
 from bench.corpus.broken import broken_record, gps_jump_of, with_gps_jump
 from bench.corpus import report as corpus_report
-from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, evaluate_result,
-                                 mappable_ids, projection_error_px, true_distortion_error_px,
+from bench.paper.metrics import (RECALL_MIN_FRAMES, calibration_summary, distortion_error_px,
+                                 evaluate_result, mappable_ids, projection_error_px, true_camera,
                                  truth_id)
 from bench.paper.run_pipeline import RunOutput, RunTask, detections_of, run_isolated
 from bench.paper.runner import finite, run_meta  # commit, machine, pycolmap: as the other benches
@@ -115,10 +115,10 @@ def camera_errors(est: dict[str, float], true: dict[str, float]) -> dict[str, fl
         out[f"{k}_abs"] = est[k] - true[k]
     for k in ("cx", "cy"):
         out[f"{k}_px"] = est[k] - true[k]
-    distortion_px = true_distortion_error_px(est, true)
-    if distortion_px is not None:
-        out["distortion_px"] = distortion_px
-        out["projection_px"] = true_distortion_error_px(est, true, projection_error_px)
+    camera = true_camera(true)
+    if camera is not None:
+        out["distortion_px"] = distortion_error_px(est, camera)
+        out["projection_px"] = projection_error_px(est, camera)
     return out
 
 

@@ -18,6 +18,7 @@ from app.pipeline.geometry.facing import angle_between_deg
 from app.pipeline.geometry.geodesy import frame_at
 from app.pipeline.geometry.similarity import umeyama
 from app.pipeline.types import Calibration, CameraModel, JourneyResult
+from app.synth.camera.detect import project
 from app.synth.camera.lens import distort_radius, undistort_normalized
 
 CALIB_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2")
@@ -282,25 +283,24 @@ def projection_error_px(est: dict[str, float], true: CameraModel, n: int = 41) -
     off and a distortion that makes up for it cost less here than ``distortion_error_px`` says:
     on a wide lens, fx 0.25 % off moves its edge by ~2 px, which k1 can take back."""
     xy_u = undistort_normalized(true, _grid_px(true, n))
-    r2 = np.sum(xy_u ** 2, axis=1)
-
-    def project(c) -> np.ndarray:
-        radial = 1.0 + c["k1"] * r2 + c["k2"] * r2 * r2
-        return np.column_stack([c["fx"] * xy_u[:, 0] * radial + c["cx"],
-                                c["fy"] * xy_u[:, 1] * radial + c["cy"]])
-
-    return float(np.max(np.linalg.norm(project(est) - project(true.params()), axis=1)))
+    rays = np.column_stack([xy_u, np.ones(len(xy_u))])
+    estimated = CameraModel.from_params(true.width, true.height, est)
+    return float(np.max(np.linalg.norm(project(estimated, rays) - project(true, rays), axis=1)))
 
 
-def true_distortion_error_px(est: dict[str, float], true: dict,
-                             error=distortion_error_px) -> float | None:
-    """``distortion_error_px`` (or ``error``) against a true camera given as a dict (a corpus
-    journey's parameters, a truth file's camera): None unless it has the image size and all six
-    intrinsics."""
+def true_camera(true: dict) -> CameraModel | None:
+    """A true camera given as a dict (a corpus journey's parameters, a truth file's camera):
+    None unless it has the image size and all six intrinsics."""
     keys = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2")
     if any(true.get(k) is None for k in keys):
         return None
-    return error(est, CameraModel.from_params(int(true["width"]), int(true["height"]), true))
+    return CameraModel.from_params(int(true["width"]), int(true["height"]), true)
+
+
+def true_distortion_error_px(est: dict[str, float], true: dict) -> float | None:
+    """``distortion_error_px`` against ``true_camera(true)``; None without one."""
+    camera = true_camera(true)
+    return None if camera is None else distortion_error_px(est, camera)
 
 
 def calibration_summary(cal: Calibration, errors: Callable[[dict], dict], *, camera_key: str,
